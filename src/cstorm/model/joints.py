@@ -60,7 +60,10 @@ class Revolute(Joint):
     name, nq, nv = "revolute", 1, 1
 
     def transform(self, axis, qj):
-        return sp.so3_exp(axis * qj[0]), jnp.zeros(3, dtype=axis.dtype)
+        # Rodrigues with a unit axis: R = I + sin(q) K + (1 - cos(q)) K^2, K = [axis]x
+        K = sp.skew(axis)
+        R = jnp.eye(3, dtype=axis.dtype) + jnp.sin(qj[0]) * K + (1.0 - jnp.cos(qj[0])) * sp.mm(K, K)
+        return R, jnp.zeros(3, dtype=axis.dtype)
 
     def motion_subspace(self, axis):
         return jnp.concatenate([axis, jnp.zeros(3, dtype=axis.dtype)])[:, None]

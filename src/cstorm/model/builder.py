@@ -20,6 +20,7 @@ Units SI; angles in rad; ``rpy`` is URDF's fixed-axis roll-pitch-yaw, R = Rz(y) 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import jax.numpy as jnp
@@ -61,8 +62,12 @@ def make_pose(pose=None, xyz=None, rpy=None, R=None, where="") -> np.ndarray:
     return T
 
 
-def check_inertia(mass, com, inertia, where: str):
-    """Validate and normalize mass (float), com (3,), inertia (3, 3) about the CoM."""
+def check_inertia(mass, com, inertia, where: str, strict: bool = True):
+    """Validate and normalize mass (float), com (3,), inertia (3, 3) about the CoM.
+
+    ``strict=False`` turns a violated triangle inequality (found in many published
+    URDFs; the dynamics stay well defined) into a warning; non-symmetric or indefinite
+    inertias are errors either way."""
     m = float(mass)
     if not np.isfinite(m) or m < 0:
         raise ModelError(f"{where}: mass must be finite and >= 0, got {mass}")
@@ -82,14 +87,15 @@ def check_inertia(mass, com, inertia, where: str):
         raise ModelError(f"{where}: inertia matrix is not symmetric:\n{I}")
     I = 0.5 * (I + I.T)
     ev = np.linalg.eigvalsh(I)
-    tol = 1e-9 * scale
+    tol = 1e-9 * scale + 1e-18  # absolute floor: rounding noise on (near-)zero inertias
     if ev.min() < -tol:
         raise ModelError(f"{where}: inertia is not positive semi-definite (principal moments {ev.tolist()})")
     if ev[2] > ev[0] + ev[1] + max(tol, 1e-6 * scale):
-        raise ModelError(
-            f"{where}: inertia violates the triangle inequality (principal moments {ev.tolist()}: "
-            f"{ev[2]:.6g} > {ev[0]:.6g} + {ev[1]:.6g}); no rigid body has this inertia"
-        )
+        msg = (f"{where}: inertia violates the triangle inequality (principal moments {ev.tolist()}: "
+               f"{ev[2]:.6g} > {ev[0]:.6g} + {ev[1]:.6g}); no rigid body has this inertia")
+        if strict:
+            raise ModelError(msg + " (inertia_check='lenient' accepts it with a warning)")
+        warnings.warn(msg + "; accepted (inertia_check='lenient')", stacklevel=4)
     if m == 0 and ev.max() > tol and scale > 1e-12:
         pass  # massless link with rotational inertia: allowed (rotors), kept as is
     return m, c, I
@@ -124,7 +130,13 @@ class _JointSpec:
 class ModelBuilder:
     """Collects links, joints, collision shapes and frames; `build()` makes a `Model`."""
 
-    def __init__(self, name: str = "robot", gravity=(0.0, 0.0, -9.81), source: str = "<builder>"):
+    def __init__(self, name: str = "robot", gravity=(0.0, 0.0, -9.81), source: str = "<builder>",
+                 inertia_check: str = "strict"):
+        """``inertia_check``: ``"strict"`` (an inertia violating the triangle inequality is
+        a `ModelError`) or ``"lenient"`` (a warning)."""
+        if inertia_check not in ("strict", "lenient"):
+            raise ModelError(f"{source}: inertia_check must be 'strict' or 'lenient', got {inertia_check!r}")
+        self.inertia_check = inertia_check
         self.name = name
         self.gravity = np.asarray(gravity, dtype=float)
         self.source = source
@@ -144,7 +156,8 @@ class ModelBuilder:
         (3, 3), principal (3,) or URDF-ordered (ixx, ixy, ixz, iyy, iyz, izz)."""
         if name in self.links:
             raise ModelError(f"{self._where('link', name)} is defined twice")
-        m, c, I = check_inertia(mass, com, inertia, self._where("link", name))
+        m, c, I = check_inertia(mass, com, inertia, self._where("link", name),
+                                strict=getattr(self, "inertia_check", "strict") == "strict")
         self.links[name] = _Link(name, m, c, I)
         return self
 

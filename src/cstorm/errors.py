@@ -24,3 +24,8 @@ class DivergenceError(CstormError, RuntimeError):
 
 class ProblemError(CstormError, ValueError):
     """A motion problem is ill-posed (unknown joint names, inconsistent sizes, ...)."""
+
+
+class ContactParamError(ShapeError):
+    """A contact parameter (stiffness, damping, d_on, d_off, friction, v_max, eps) is
+    invalid; the message names it. A subclass of `ShapeError`."""

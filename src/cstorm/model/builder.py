@@ -308,13 +308,13 @@ class ModelBuilder:
             if b < 0 or L.mass == 0 and not np.any(L.inertia):
                 continue
             T = link_pose[ln]
-            I_link = np.asarray(sp.spatial_inertia(L.mass, L.com, L.inertia))
-            Isp[b] += np.asarray(sp.transform_inertia(T[:3, :3], T[:3, 3], I_link))
+            I_link = _np_spatial_inertia(L.mass, L.com, L.inertia)
+            Isp[b] += _np_transform_inertia(T[:3, :3], T[:3, 3], I_link)
         mass, com, inertia = [], [], []
         for b in range(nb):
             m = Isp[b][3, 3]
             if m > 0:
-                m_, c_, Ic_ = (np.asarray(x) for x in sp.inertia_parts(jnp.asarray(Isp[b])))
+                m_, c_, Ic_ = _np_inertia_parts(Isp[b])
             else:
                 m_, c_, Ic_ = 0.0, np.zeros(3), Isp[b][:3, :3]
             mass.append(float(m_)), com.append(c_), inertia.append(0.5 * (Ic_ + Ic_.T))
@@ -379,9 +379,7 @@ def check_nonsingular(model: Model):
     """Raise `ModelError` if some joint moves a subtree with no mass or no inertia about
     its axis (the mass matrix would be singular). Checked at the neutral configuration
     with armature included."""
-    from ..dynamics.crba import mass_matrix
-
-    M = np.asarray(mass_matrix(model, jnp.asarray(model.neutral())))
+    M = _np_mass_matrix(model, model.neutral())
     if not np.all(np.isfinite(M)):
         raise ModelError(f"{model.source}: the mass matrix has NaN/inf entries; check inertias")
     scale = max(1.0, np.abs(M).max())
@@ -398,3 +396,94 @@ def check_nonsingular(model: Model):
         np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
         raise ModelError(f"{model.source}: the mass matrix is not positive definite at the neutral configuration") from None
+
+
+# --- host-side (numpy) helpers: model construction stays fast for big trees (no per-op JAX
+# dispatch); the same formulas as `cstorm.spatial` and `cstorm.dynamics.crba`.
+def _np_skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _np_spatial_inertia(mass, com, inertia_com):
+    C = _np_skew(np.asarray(com, dtype=float))
+    return np.block([[inertia_com + mass * (C @ C.T), mass * C], [mass * C.T, mass * np.eye(3)]])
+
+
+def _np_Ad(R, p):
+    """(6, 6) motion transform [[R, 0], [[p]x R, R]] (A from B)."""
+    X = np.zeros((6, 6))
+    X[:3, :3] = X[3:, 3:] = R
+    X[3:, :3] = _np_skew(p) @ R
+    return X
+
+
+def _np_transform_inertia(R, p, I):
+    """Spatial inertia given in B -> expressed in A (T = A from B)."""
+    Xi = _np_Ad(R.T, -R.T @ p)  # Ad(T^-1)
+    return Xi.T @ I @ Xi
+
+
+def _np_inertia_parts(I):
+    """(mass, com (3,), inertia about the CoM (3, 3)) of a spatial inertia with mass > 0."""
+    m = I[3, 3]
+    C = I[:3, 3:] / m
+    c = 0.5 * np.array([C[2, 1] - C[1, 2], C[0, 2] - C[2, 0], C[1, 0] - C[0, 1]])
+    Cs = _np_skew(c)
+    return float(m), c, I[:3, :3] - m * (Cs @ Cs.T)
+
+
+def _np_joint_transform(joint, axis, qj):
+    """(R, p) of a joint's displacement (joint frame from child frame), numpy."""
+    from .joints import Ball, Revolute
+
+    def quat_R(w, x, y, z):
+        n = np.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w / n, x / n, y / n, z / n
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+    if isinstance(joint, Revolute):
+        K = _np_skew(axis)
+        t = qj[0]
+        return np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * (K @ K), np.zeros(3)
+    if isinstance(joint, Prismatic):
+        return np.eye(3), axis * qj[0]
+    if isinstance(joint, Free):
+        return quat_R(*qj[3:7]), np.asarray(qj[:3], dtype=float)
+    if isinstance(joint, Ball):
+        return quat_R(*qj), np.zeros(3)
+    raise TypeError(f"no host-side transform for joint type {type(joint).__name__}")
+
+
+def _np_mass_matrix(model: Model, q) -> np.ndarray:
+    """Joint-space mass matrix (nv, nv) at q, numpy (composite inertias in world axes):
+    ``M[j, i] = S_j^T Ic_i S_i`` for j an ancestor of i (or i), armature on the diagonal."""
+    q = np.asarray(q, dtype=float)
+    jR, jp, ax = np.asarray(model.joint_R), np.asarray(model.joint_p), np.asarray(model.axis)
+    mass, com, inertia = np.asarray(model.mass), np.asarray(model.com), np.asarray(model.inertia)
+    nb = model.n_bodies
+    oR, op, Sw, Iw = [], [], [], []
+    for i, (j, par) in enumerate(zip(model.joints, model.parents)):
+        s = model.q_starts[i]
+        RJ, pJ = _np_joint_transform(j, ax[i], q[s: s + j.nq])
+        R, p = jR[i] @ RJ, jR[i] @ pJ + jp[i]
+        if par >= 0:
+            R, p = oR[par] @ R, oR[par] @ p + op[par]
+        oR.append(R), op.append(p)
+        Sw.append(_np_Ad(R, p) @ np.asarray(j.motion_subspace(jnp.asarray(ax[i]))))
+        Iw.append(_np_transform_inertia(R, p, _np_spatial_inertia(mass[i], com[i], inertia[i])))
+    for i in reversed(range(nb)):
+        if model.parents[i] >= 0:
+            Iw[model.parents[i]] = Iw[model.parents[i]] + Iw[i]
+    M = np.zeros((model.nv, model.nv))
+    for i in range(nb):
+        si, ni = model.v_starts[i], model.joints[i].nv
+        F = Iw[i] @ Sw[i]
+        j = i
+        while j >= 0:
+            sj, nj = model.v_starts[j], model.joints[j].nv
+            M[sj: sj + nj, si: si + ni] = Sw[j].T @ F
+            M[si: si + ni, sj: sj + nj] = M[sj: sj + nj, si: si + ni].T
+            j = model.parents[j]
+    return M + np.diag(np.asarray(model.armature))

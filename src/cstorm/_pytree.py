@@ -15,27 +15,49 @@ import dataclasses
 import jax
 
 
-def pytree_dataclass(cls=None, *, meta: tuple[str, ...] = ()):
+class _Label:
+    """Carries informational static data (names, file paths) through a tree structure
+    without keying JAX's compile cache: all labels compare equal."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+    def __eq__(self, other):
+        return isinstance(other, _Label)
+
+    def __hash__(self):
+        return 0
+
+
+def pytree_dataclass(cls=None, *, meta: tuple[str, ...] = (), labels: tuple[str, ...] = ()):
+    """``meta``: static fields that key compilation; ``labels``: static fields that
+    don't (e.g. a model's name), so objects differing only in labels share compiled code."""
+    meta = tuple(meta) + tuple(labels)
+
     def wrap(cls):
         cls = dataclasses.dataclass(frozen=True, eq=False)(cls)
         names = [f.name for f in dataclasses.fields(cls)]
         data_names = tuple(n for n in names if n not in meta)
         meta_names = tuple(n for n in names if n in meta)
 
+        def aux_of(obj):
+            return tuple(_Label(getattr(obj, n)) if n in labels else getattr(obj, n) for n in meta_names)
+
         def flatten_with_keys(obj):
             children = [(jax.tree_util.GetAttrKey(n), getattr(obj, n)) for n in data_names]
-            aux = tuple(getattr(obj, n) for n in meta_names)
-            return children, aux
+            return children, aux_of(obj)
 
         def flatten(obj):
-            return [getattr(obj, n) for n in data_names], tuple(getattr(obj, n) for n in meta_names)
+            return [getattr(obj, n) for n in data_names], aux_of(obj)
 
         def unflatten(aux, children):
             obj = object.__new__(cls)
             for n, c in zip(data_names, children):
                 object.__setattr__(obj, n, c)
             for n, a in zip(meta_names, aux):
-                object.__setattr__(obj, n, a)
+                object.__setattr__(obj, n, a.value if isinstance(a, _Label) else a)
             return obj
 
         jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)

@@ -29,10 +29,9 @@ from .joints import Joint, Free, Ball
 
 
 @pytree_dataclass(
-    meta=(
-        "name", "body_names", "joint_names", "parents", "joints", "q_starts", "v_starts",
-        "geom_names", "geom_bodies", "frame_names", "frame_bodies", "source",
-    )
+    meta=("body_names", "joint_names", "parents", "joints", "q_starts", "v_starts", "geom_names", "geom_bodies",
+          "frame_names", "frame_bodies"),
+    labels=("name", "source"),
 )
 class Model:
     # --- static -----------------------------------------------------------------

@@ -272,27 +272,30 @@ class ModelBuilder:
         for j in joints.values():
             children[j.parent].append(j)
 
-        # depth-first traversal: bodies in an order with parent < child
+        # depth-first pre-order traversal, children in the order their joints were added
+        # (URDF file order; MuJoCo's body order, so an MJCF model's q is MuJoCo's qpos):
+        # bodies in an order with parent < child
         link_body: dict[str, int] = {world: -1}
         link_pose: dict[str, np.ndarray] = {world: I4}
         bodies: list[dict] = []
-        stack = [world]
+        stack: list[tuple[str, _JointSpec | None]] = [(world, None)]
         visited = set()
         while stack:
-            ln = stack.pop()
+            ln, j = stack.pop()
             if ln in visited:
                 raise ModelError(f"{src}: link {ln!r} is reached twice: the joints form a cycle")
             visited.add(ln)
-            for j in reversed(children[ln]):
-                T = link_pose[ln] @ j.origin
+            if j is not None:
+                T = link_pose[j.parent] @ j.origin
                 if j.type == "fixed":
-                    link_body[j.child] = link_body[ln]
-                    link_pose[j.child] = T
+                    link_body[ln] = link_body[j.parent]
+                    link_pose[ln] = T
                 else:
-                    bodies.append(dict(name=j.child, joint=j, parent=link_body[ln], T=T))
-                    link_body[j.child] = len(bodies) - 1
-                    link_pose[j.child] = I4
-                stack.append(j.child)
+                    bodies.append(dict(name=ln, joint=j, parent=link_body[j.parent], T=T))
+                    link_body[ln] = len(bodies) - 1
+                    link_pose[ln] = I4
+            for jc in reversed(children[ln]):
+                stack.append((jc.child, jc))
         unreached = [n for n in self.links if n not in link_body]
         if unreached:
             raise ModelError(f"{src}: links {unreached} are not connected to the root {root!r} (a cycle?)")

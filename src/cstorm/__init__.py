@@ -1,6 +1,8 @@
 """cstorm: optimal motions for robots that make and break contact.
 
-The public API (see DESIGN.md) is re-exported here; nothing else is.
+The public API (see DESIGN.md) is re-exported here; nothing else is. cstorm computes in
+float64: enable it with ``jax.config.update("jax_enable_x64", True)`` before use (the CLI
+and the test-suite do; cstorm never changes global JAX flags on import).
 """
 
 __version__ = "0.1.0"
@@ -8,8 +10,13 @@ __version__ = "0.1.0"
 from .errors import CstormError, ModelError, ShapeError, InputError, DivergenceError, ProblemError
 from .geometry.shapes import Sphere, Capsule, Box, Cylinder, Plane, ConvexMesh
 from .model import Model, ModelBuilder, Revolute, Prismatic, Free, Ball
+from .model.urdf import load_urdf
+from .model.mjcf import load_mjcf
 from .dynamics import (
     forward_kinematics, body_velocities, frame_pose, rnea, bias_forces, gravity_forces, mass_matrix, aba,
     hybrid_dynamics, point_jacobian, kinetic_energy, potential_energy, center_of_mass, passive_forces,
     integrate, difference, normalize,
 )
+from .trajectory import QuinticBSpline
+from .contact import ContactParams
+from . import robots

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# cstorm's main job on a fresh machine: make a virtual environment, install cstorm, run
+# the demo and write its pictures to ./cstorm-out/demo (or the directory given as $1).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e .
+.venv/bin/cstorm demo --out "${1:-cstorm-out/demo}"

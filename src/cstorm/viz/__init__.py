@@ -1,0 +1,1 @@
+"""Pictures of models and motions: planar drawings, plots, animations (matplotlib)."""

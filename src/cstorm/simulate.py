@@ -1,0 +1,469 @@
+"""Rollouts of the hybrid dynamics (DESIGN.md, "The method", items 2 and 5; the draft's
+"Generating Motions", eq. (sysint)): active joints follow prescribed paths, the passive
+state ``(q_p, v_p, J_int)`` is integrated forward.
+
+Conventions
+-----------
+- Time grid ``t_k = k dt``, ``k = 0..N`` with ``N = n_steps``; ``t_N = t_final``.
+- *Active* joints must be 1-DoF (revolute, prismatic). Their position, velocity and
+  acceleration are prescribed on the grid (and, for RK4, at the half steps
+  ``t_k + dt/2``): `rollout` takes them as arrays, `simulate` computes them from a
+  `QuinticBSpline` with basis matrices precomputed on the host (one matmul per rollout).
+- *Passive* DoFs get the generalized force ``tau_p = passive_forces(q, v)[passive]``
+  (springs, dampers, limit penalties) and, when a contact model is given, the contact
+  wrenches ``f_ext``; their acceleration comes from `hybrid_dynamics`.
+- **Torque convention.** ``tau`` (nv,) in the trajectory is the force each joint's
+  actuator (or, for passive DoFs, its spring/damper/limit) applies:
+  ``tau_motor = tau_active_from_hybrid - passive_forces[active]`` on active DoFs (the
+  motor supplies what the rigid-body dynamics needs minus what the joint's own spring and
+  damper already supply) and ``tau = passive_forces[passive]`` on passive DoFs.
+- Integrators: ``"rk4"`` (default): classical RK4; free and ball joints are integrated on
+  their group by the Runge-Kutta-Munthe-Kaas method (RKMK4: RK4 on the exponential
+  coordinates ``theta`` with ``q = q_0 exp(theta)`` and the ``dexp^-1`` series truncated
+  after the second-order term), which is 4th-order accurate on SE(3)/SO(3) (plain RK4 on
+  quaternion components is not). ``"euler"``: semi-implicit (symplectic) Euler,
+  ``v+ = v + dt a(q, v)``, ``q+ = q (+) dt v+``, order 1. The running cost is
+  integrated by the same rule (it is the third component of the ODE state).
+- Reverse-mode memory: the scan over steps is nested, an outer scan over segments of
+  ``segment`` steps whose inner scan is wrapped in `jax.checkpoint`, so reverse-mode
+  differentiation stores one state per segment plus one segment's intermediates:
+  O(N / segment + segment) instead of O(N) (default segment ~ sqrt(N)).
+- Divergence: a step whose new passive state has a NaN/inf entry or exceeds the bounds
+  (``|q_p| > q_bound``, ``|v_p| > v_bound``) marks the rollout diverged; the state is
+  frozen from then on (so nothing downstream turns NaN), the running cost becomes inf,
+  and the result records the first bad step, DoF and reason. `simulate` raises
+  `DivergenceError` naming the time and the joint; optimizers treat it as a rejected
+  step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, Callable
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+
+from . import spatial as sp
+from .dynamics.hybrid import _hybrid
+from .dynamics.passive import passive_forces
+from .errors import DivergenceError, InputError, ProblemError
+from .model.joints import Ball, Free
+from .trajectory import QuinticBSpline
+
+__all__ = ["simulate", "rollout", "Trajectory", "RolloutLayout", "time_grid", "active_paths", "check_divergence"]
+
+INTEGRATORS = ("rk4", "euler")
+_REASONS = ("", "non-finite position", "non-finite velocity", "position bound exceeded", "velocity bound exceeded")
+
+
+# ---------------------------------------------------------------------------------------
+# Static layout of a model split into active and passive joints
+# ---------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class RolloutLayout:
+    """Static index maps for a model with the given active joints (host data).
+
+    Attributes: ``active`` (nv bools), ``active_joints`` / ``passive_joints`` (joint
+    indices), ``qa_idx`` / ``va_idx`` (q / v indices of the active 1-DoF joints, in the
+    order of ``active_names``), ``qp_idx`` / ``vp_idx`` (q / v indices of passive DoFs, in
+    model order), ``active_names``."""
+
+    active: tuple
+    active_names: tuple
+    active_joints: tuple
+    passive_joints: tuple
+    qa_idx: tuple
+    va_idx: tuple
+    qp_idx: tuple
+    vp_idx: tuple
+
+    @staticmethod
+    def make(model, active_names) -> "RolloutLayout":
+        if isinstance(active_names, str):
+            active_names = [active_names]
+        active_names = tuple(active_names)
+        if len(set(active_names)) != len(active_names):
+            raise ProblemError(f"active joints listed twice: {list(active_names)}")
+        ajs = []
+        for n in active_names:
+            if n not in model.joint_names:
+                raise ProblemError(
+                    f"model {model.name!r}: no joint named {n!r} to make active; joints with DoFs are "
+                    f"{list(model.joint_names)}")
+            i = model.joint_names.index(n)
+            j = model.joints[i]
+            if j.nq != 1 or j.nv != 1:
+                raise ProblemError(
+                    f"active joint {n!r} is a {j.name} joint with nq={j.nq}, nv={j.nv}; active joints must be "
+                    "1-DoF (revolute or prismatic): their paths are scalar splines")
+            ajs.append(i)
+        # active order: model order, so that a_active in hybrid_dynamics matches
+        order = sorted(range(len(ajs)), key=lambda k: ajs[k])
+        ajs = [ajs[k] for k in order]
+        active_names = tuple(active_names[k] for k in order)
+        pjs = [i for i in range(len(model.joints)) if i not in ajs]
+        qa = tuple(model.q_starts[i] for i in ajs)
+        va = tuple(model.v_starts[i] for i in ajs)
+        qp = tuple(model.q_starts[i] + k for i in pjs for k in range(model.joints[i].nq))
+        vp = tuple(model.v_starts[i] + k for i in pjs for k in range(model.joints[i].nv))
+        act = [False] * model.nv
+        for k in va:
+            act[k] = True
+        return RolloutLayout(tuple(act), active_names, tuple(ajs), tuple(pjs), qa, va, qp, vp)
+
+    @property
+    def n_active(self) -> int:
+        return len(self.va_idx)
+
+    @property
+    def n_passive_v(self) -> int:
+        return len(self.vp_idx)
+
+
+def time_grid(t_final: float, dt: float):
+    """``(N, dt_exact, t (N+1,))``: the number of steps ``N = round(t_final / dt)`` (>= 1)
+    and the step that makes ``N dt = t_final`` exactly."""
+    T, h = float(t_final), float(dt)
+    if not (math.isfinite(T) and T > 0):
+        raise InputError(f"t_final must be finite and > 0, got {t_final!r}")
+    if not (math.isfinite(h) and 0 < h <= T):
+        raise InputError(f"dt must be finite, > 0 and <= t_final={T}, got {dt!r}")
+    N = max(1, int(round(T / h)))
+    return N, T / N, np.linspace(0.0, T, N + 1)
+
+
+def active_paths(spline: QuinticBSpline, n_steps: int, integrator: str = "rk4"):
+    """Host-side basis matrices for the active paths on the grid: a dict with ``B0, B1,
+    B2`` ((N+1, n_ctrl) at ``t_k``) and, for RK4, ``M0, M1, M2`` ((N, n_ctrl) at the half
+    steps). ``q_a = B0 @ ctrl`` etc."""
+    N = int(n_steps)
+    t = np.linspace(0.0, spline.t_final, N + 1)
+    out = dict(zip(("B0", "B1", "B2"), spline.basis(t)))
+    if integrator == "rk4":
+        tm = (t[:-1] + t[1:]) / 2
+        out.update(zip(("M0", "M1", "M2"), spline.basis(tm)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# Lie-group helpers for the passive joints
+# ---------------------------------------------------------------------------------------
+def _passive_exp(model, layout, q, theta):
+    """q with every passive joint moved by ``q_j exp(theta_j)`` (theta: (n_passive_v,))."""
+    out = q
+    k = 0
+    for i in layout.passive_joints:
+        j = model.joints[i]
+        qs = model.q_starts[i]
+        out = out.at[qs: qs + j.nq].set(j.integrate(q[qs: qs + j.nq], theta[k: k + j.nv]))
+        k += j.nv
+    return out
+
+
+def _dexpinv(model, layout, theta, xi):
+    """``dexp^-1`` of the right-trivialized exponential, truncated after the second
+    order: ``xi + 1/2 [theta, xi] + 1/12 [theta, [theta, xi]]`` per free/ball joint
+    (identity on 1-DoF joints, whose group is abelian)."""
+    parts = []
+    k = 0
+    for i in layout.passive_joints:
+        j = model.joints[i]
+        th, x = theta[k: k + j.nv], xi[k: k + j.nv]
+        if isinstance(j, Free):
+            A = sp.ad(th)
+            c1 = A @ x
+            parts.append(x + 0.5 * c1 + (A @ c1) / 12.0)
+        elif isinstance(j, Ball):
+            c1 = jnp.cross(th, x)
+            parts.append(x + 0.5 * c1 + jnp.cross(th, c1) / 12.0)
+        else:
+            parts.append(x)
+        k += j.nv
+    return jnp.concatenate(parts) if parts else xi
+
+
+# ---------------------------------------------------------------------------------------
+# One evaluation of the dynamics at a stage
+# ---------------------------------------------------------------------------------------
+def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params):
+    """Dynamics at one instant. q, v: full vectors whose passive entries are the
+    integrated state; the active entries are overwritten with (qa, va).
+    Returns (q, v, a (nv,), tau (nv,), contact data, running-cost integrand)."""
+    ia, iva, ivp = np.array(layout.qa_idx, int), np.array(layout.va_idx, int), np.array(layout.vp_idx, int)
+    if len(ia):
+        q = q.at[ia].set(qa)
+        v = v.at[iva].set(va)
+    pf = passive_forces(model, q, v)
+    if contact_fn is not None:
+        f_ext, cdata = contact_fn(q, v)
+    else:
+        f_ext, cdata = None, None
+    tau_a, a_p = _hybrid(model, q, v, aa, pf[ivp], layout.active, f_ext)
+    a = jnp.zeros(model.nv, dtype=v.dtype)
+    tau = pf
+    if len(iva):
+        a = a.at[iva].set(aa)
+        tau = tau.at[iva].set(tau_a - pf[iva])
+    if len(ivp):
+        a = a.at[ivp].set(a_p)
+    L = cost_fn(t, q, v, a, tau, cdata, params) if cost_fn is not None else jnp.zeros((), v.dtype)
+    return q, v, a, tau, cdata, L
+
+
+# ---------------------------------------------------------------------------------------
+# The rollout
+# ---------------------------------------------------------------------------------------
+def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int, *, integrator: str = "rk4",
+            contact_fn: Callable | None = None, cost_fn: Callable | None = None, params: Any = None,
+            segment: int | None = None, q_bound: float = 1e4, v_bound: float = 1e4, record: bool = True,
+            n_valid=None):
+    """Integrate the passive state with prescribed active paths (pure JAX; jit/grad/vmap).
+
+    Args:
+      model: the `Model` (a pytree; may be traced).
+      layout: `RolloutLayout.make(model, active_names)` (static).
+      q0: (nq,) initial configuration (active entries are replaced by ``paths``).
+      v0: (nv,) initial velocity (likewise).
+      paths: dict of active-joint arrays in the layout's active order: ``qa, va, aa``
+        ((N+1, n_active) on the grid) and, for RK4, ``qm, vm, am`` ((N, n_active) at the
+        half steps).
+      dt: step (s; may be traced). n_steps: N, a static int (the scan length).
+      n_valid: optional (traced) int ``<= N``: only the first ``n_valid`` steps are taken
+        (the rest of the scan is padding), so runs of different lengths share one compiled
+        function; the final state is then at ``t = n_valid dt``.
+      integrator: ``"rk4"`` or ``"euler"``.
+      contact_fn: optional ``(q, v) -> (f_ext (n_bodies, 6), data pytree)``.
+      cost_fn: optional running-cost integrand ``(t, q, v, a, tau, contact_data, params) ->
+        scalar``; integrated into ``J``.
+      params: pytree passed to ``cost_fn``.
+      segment: steps per checkpointed segment (default ~sqrt(N)).
+      q_bound, v_bound: divergence bounds on the passive positions and velocities.
+      record: if False, the trajectory arrays are not returned (``traj`` is None).
+    Returns:
+      dict with ``J`` (running-cost integral; inf if diverged), ``qT``, ``vT`` (final
+      state, active entries from the paths), ``diverged`` (bool), ``div_step`` (int, first
+      bad step or -1), ``div_dof`` (int; index into q for position problems, into v for
+      velocity problems), ``div_reason`` (int code, see `check_divergence`), and, if
+      ``record``, ``traj``: dict ``q (N+1, nq), v, a, tau (N+1, nv)`` and ``contact``
+      (the contact data pytree stacked over the grid, or None).
+    """
+    if integrator not in INTEGRATORS:
+        raise InputError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    N = int(n_steps)
+    h = dt
+    n_run = N if n_valid is None else n_valid
+    seg = int(segment) if segment else max(1, int(math.ceil(math.sqrt(N))))
+    seg = min(seg, N)
+    n_seg = int(math.ceil(N / seg))
+    pad = n_seg * seg - N
+    q0 = jnp.asarray(q0)
+    v0 = jnp.asarray(v0)
+    dtype = v0.dtype
+    ivp = np.array(layout.vp_idx, int)
+    iqp = np.array(layout.qp_idx, int)
+    nvp = len(ivp)
+
+    def padded(x):
+        if pad:
+            x = jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)], axis=0)
+        return x.reshape((n_seg, seg) + x.shape[1:])
+
+    qa, va, aa = paths["qa"], paths["va"], paths["aa"]
+    xs = dict(qa0=qa[:-1], va0=va[:-1], aa0=aa[:-1], qa1=qa[1:], va1=va[1:], aa1=aa[1:])
+    if integrator == "rk4":
+        xs.update(qam=paths["qm"], vam=paths["vm"], aam=paths["am"])
+    xs = {k: padded(x) for k, x in xs.items()}
+    xs["k"] = jnp.arange(n_seg * seg, dtype=jnp.int32).reshape(n_seg, seg)  # steps >= N are padding
+
+    def stage(q, v, qa_, va_, aa_, t):
+        return _stage(model, layout, q, v, qa_, va_, aa_, t, contact_fn, cost_fn, params)
+
+    def step(carry, x):
+        q, v, J, bad, bstep, bdof, breason = carry
+        t = x["k"] * h
+        q1_, v1_, a1, tau1, c1, L1 = stage(q, v, x["qa0"], x["va0"], x["aa0"], t)
+        if integrator == "rk4":
+            K1, W1 = v1_[ivp], a1[ivp]
+            th = 0.5 * h * K1
+            q2 = _passive_exp(model, layout, q1_, th)
+            v2 = v1_.at[ivp].add(0.5 * h * W1)
+            q2, v2, a2, _, _, L2 = stage(q2, v2, x["qam"], x["vam"], x["aam"], t + 0.5 * h)
+            K2 = _dexpinv(model, layout, th, v2[ivp])
+            th = 0.5 * h * K2
+            q3 = _passive_exp(model, layout, q1_, th)
+            v3 = v1_.at[ivp].add(0.5 * h * a2[ivp])
+            q3, v3, a3, _, _, L3 = stage(q3, v3, x["qam"], x["vam"], x["aam"], t + 0.5 * h)
+            K3 = _dexpinv(model, layout, th, v3[ivp])
+            th = h * K3
+            q4 = _passive_exp(model, layout, q1_, th)
+            v4 = v1_.at[ivp].add(h * a3[ivp])
+            q4, v4, a4, _, _, L4 = stage(q4, v4, x["qa1"], x["va1"], x["aa1"], t + h)
+            K4 = _dexpinv(model, layout, th, v4[ivp])
+            theta = h / 6.0 * (K1 + 2 * K2 + 2 * K3 + K4)
+            qn = _passive_exp(model, layout, q1_, theta)
+            vn = v1_.at[ivp].add(h / 6.0 * (a1[ivp] + 2 * a2[ivp] + 2 * a3[ivp] + a4[ivp]))
+            Jn = J + h / 6.0 * (L1 + 2 * L2 + 2 * L3 + L4)
+        else:
+            vn = v1_.at[ivp].add(h * a1[ivp])
+            qn = _passive_exp(model, layout, q1_, h * vn[ivp])
+            Jn = J + h * L1
+        # divergence check on the passive state
+        qpn, vpn = qn[iqp], vn[ivp]
+        checks = []
+        if len(iqp):
+            checks += [(~jnp.isfinite(qpn), 1, iqp), (jnp.abs(qpn) > q_bound, 3, iqp)]
+        if nvp:
+            checks += [(~jnp.isfinite(vpn), 2, ivp), (jnp.abs(vpn) > v_bound, 4, ivp)]
+        new_bad = jnp.zeros((), bool)
+        reason = jnp.zeros((), jnp.int32)
+        dof = jnp.zeros((), jnp.int32)
+        for mask, code, idx in reversed(checks):  # first listed check wins
+            hit = jnp.any(mask)
+            reason = jnp.where(hit, code, reason)
+            dof = jnp.where(hit, jnp.asarray(idx, jnp.int32)[jnp.argmax(mask)], dof)
+            new_bad = new_bad | hit
+        new_bad = new_bad | ~jnp.isfinite(Jn)
+        valid = x["k"] < n_run
+        first = valid & ~bad & new_bad
+        keep = bad | new_bad | ~valid
+        qn = jnp.where(keep, q, qn)
+        vn = jnp.where(keep, v, vn)
+        Jn = jnp.where(keep, J, Jn)
+        carry = (qn, vn, Jn, bad | (valid & new_bad), jnp.where(first, x["k"], bstep),
+                 jnp.where(first, dof, bdof), jnp.where(first, reason, breason))
+        out = (q1_, v1_, a1, tau1, c1) if record else None
+        return carry, out
+
+    @jax.checkpoint
+    def run_segment(carry, xseg):
+        return jax.lax.scan(step, carry, xseg)
+
+    q_init = jnp.asarray(q0, dtype=dtype)
+    carry0 = (q_init, v0, jnp.zeros((), dtype), jnp.zeros((), bool), jnp.asarray(-1, jnp.int32),
+              jnp.asarray(-1, jnp.int32), jnp.asarray(0, jnp.int32))
+    carry, ys = jax.lax.scan(run_segment, carry0, xs)
+    qN, vN, J, bad, bstep, bdof, breason = carry
+    if n_valid is None:
+        qT, vT, aT, tauT, cT, _ = stage(qN, vN, qa[-1], va[-1], aa[-1], N * h)
+    else:
+        qT, vT, aT, tauT, cT, _ = stage(qN, vN, qa[n_valid], va[n_valid], aa[n_valid], n_valid * h)
+    out = dict(J=jnp.where(bad, jnp.inf, J), qT=qT, vT=vT, diverged=bad, div_step=bstep, div_dof=bdof,
+               div_reason=breason)
+    if record:
+        def flat(y, last):
+            y = y.reshape((n_seg * seg,) + y.shape[2:])[:N]
+            return jnp.concatenate([y, last[None]], axis=0)
+
+        qs, vs, as_, taus, cs_ = ys
+        traj = dict(q=flat(qs, qT), v=flat(vs, vT), a=flat(as_, aT), tau=flat(taus, tauT))
+        traj["contact"] = None if cs_ is None else jax.tree_util.tree_map(flat, cs_, cT)
+        out["traj"] = traj
+    return out
+
+
+def check_divergence(model, result, dt: float, where: str = "rollout"):
+    """Raise `DivergenceError` if a (concrete) rollout result diverged, naming the time,
+    the joint and the reason."""
+    if not bool(np.asarray(result["diverged"])):
+        return
+    k = int(np.asarray(result["div_step"]))
+    dof = int(np.asarray(result["div_dof"]))
+    code = int(np.asarray(result["div_reason"]))
+    is_q = code in (1, 3)
+    starts = model.q_starts if is_q else model.v_starts
+    sizes = [j.nq if is_q else j.nv for j in model.joints]
+    joint = "?"
+    for name, s, n in zip(model.joint_names, starts, sizes):
+        if s <= dof < s + n:
+            joint = name
+            comp = "" if n == 1 else f" (component {dof - s})"
+            joint = f"{name!r}{comp}"
+            break
+    t = (k + 1) * float(dt)
+    raise DivergenceError(
+        f"{where} diverged at t = {t:.6g} s (step {k + 1}): {_REASONS[code]} of joint {joint}; "
+        "reduce dt, soften contact stiffness, or check the model and the initial state")
+
+
+# ---------------------------------------------------------------------------------------
+# Convenience front end
+# ---------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class Trajectory:
+    """A simulated motion on the grid ``t`` (N+1,): ``q`` (N+1, nq), ``v``, ``a``, ``tau``
+    (N+1, nv) (``tau``: motor torques on active DoFs, spring/damper/limit forces on
+    passive ones; see the module docstring), ``cost`` (running-cost integral) and
+    ``contact`` (per-point contact data stacked over the grid, or None)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    tau: np.ndarray
+    cost: float
+    contact: Any = None
+
+
+def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=None, spline=None,
+             integrator: str = "rk4", contact_fn=None, cost_fn=None, params=None, segment=None,
+             q_bound: float = 1e4, v_bound: float = 1e4) -> Trajectory:
+    """Simulate a motion (eager, host-side results).
+
+    Args:
+      model: the `Model`. q0: (nq,) initial configuration; v0: (nv,) initial velocity
+        (default zeros).
+      t_final, dt: duration and step (s); ``N = round(t_final / dt)`` steps.
+      active: names of the active (1-DoF) joints; () for a free (all-passive) rollout.
+      ctrl: (n_ctrl, n_active) control points of the active paths (in the order of
+        ``active`` as given) on ``spline`` (a `QuinticBSpline` over ``[0, t_final]``). With
+        ``ctrl=None`` the active joints are held at their ``q0`` values.
+      integrator, contact_fn, cost_fn, params, segment, q_bound, v_bound: as `rollout`.
+    Returns:
+      `Trajectory`. Raises `DivergenceError` if the rollout diverges.
+    """
+    layout = RolloutLayout.make(model, active)
+    N, h, t = time_grid(t_final, dt)
+    q0 = jnp.asarray(q0, dtype=jnp.float64 if jax.config.jax_enable_x64 else None)
+    if q0.shape != (model.nq,):
+        raise InputError(f"simulate: q0 must have shape ({model.nq},), got {q0.shape}")
+    v0 = jnp.zeros(model.nv, q0.dtype) if v0 is None else jnp.asarray(v0, q0.dtype)
+    if v0.shape != (model.nv,):
+        raise InputError(f"simulate: v0 must have shape ({model.nv},), got {v0.shape}")
+    na = layout.n_active
+    given_names = tuple([active] if isinstance(active, str) else active)
+    if ctrl is None:
+        qa0 = q0[np.array(layout.qa_idx, int)] if na else jnp.zeros(0, q0.dtype)
+        paths = dict(qa=jnp.broadcast_to(qa0, (N + 1, na)), va=jnp.zeros((N + 1, na), q0.dtype),
+                     aa=jnp.zeros((N + 1, na), q0.dtype))
+        paths.update(qm=paths["qa"][:-1], vm=paths["va"][:-1], am=paths["aa"][:-1])
+    else:
+        if spline is None or abs(spline.t_final - float(t_final)) > 1e-12 * float(t_final):
+            raise InputError("simulate: ctrl needs spline=QuinticBSpline(n_ctrl, t_final) with the same t_final")
+        ctrl = jnp.asarray(ctrl, q0.dtype).reshape(spline.n_ctrl, -1)
+        if ctrl.shape[1] != na:
+            raise InputError(f"simulate: ctrl must have shape ({spline.n_ctrl}, {na}), got {ctrl.shape}")
+        perm = np.array([given_names.index(n) for n in layout.active_names], int)
+        ctrl = ctrl[:, perm]
+        Bs = active_paths(spline, N, integrator)
+        paths = dict(qa=Bs["B0"] @ ctrl, va=Bs["B1"] @ ctrl, aa=Bs["B2"] @ ctrl)
+        if integrator == "rk4":
+            paths.update(qm=Bs["M0"] @ ctrl, vm=Bs["M1"] @ ctrl, am=Bs["M2"] @ ctrl)
+    res = _simulate_jit(model, q0, v0, paths, params, jnp.asarray(h, q0.dtype), layout=layout, N=N, integrator=integrator,
+                        contact_fn=contact_fn, cost_fn=cost_fn, segment=segment, q_bound=q_bound, v_bound=v_bound)
+    check_divergence(model, res, h, "simulate")
+    tr = res["traj"]
+    contact = None if tr["contact"] is None else jax.tree_util.tree_map(np.asarray, tr["contact"])
+    return Trajectory(t=t, q=np.asarray(tr["q"]), v=np.asarray(tr["v"]), a=np.asarray(tr["a"]),
+                      tau=np.asarray(tr["tau"]), cost=float(res["J"]), contact=contact)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "N", "integrator", "contact_fn", "cost_fn", "segment",
+                                             "q_bound", "v_bound"))
+def _simulate_jit(model, q0, v0, paths, params, h, *, layout, N, integrator, contact_fn, cost_fn, segment, q_bound,
+                  v_bound):
+    return rollout(model, layout, q0, v0, paths, h, N, integrator=integrator, contact_fn=contact_fn,
+                   cost_fn=cost_fn, params=params, segment=segment, q_bound=q_bound, v_bound=v_bound)

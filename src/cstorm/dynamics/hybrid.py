@@ -95,12 +95,12 @@ def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
     # pass 1: velocities, bias terms
     vs, cs_, IA, pA = [], [], [], []
     for i, par in enumerate(model.parents):
-        vJ = Ss[i] @ v[sl[i]]
+        vJ = sp.mv(Ss[i], v[sl[i]])
         vi = vJ if par < 0 else sp.inv_act_motion(Rs[i], ps[i], vs[par]) + vJ
         ci = sp.cross_motion(vi, vJ)
         if loc_a[i]:
-            ci = ci + Ss[i][:, loc_a[i]] @ qdd_known[sl[i]][jnp.array(loc_a[i])]
-        pi = sp.cross_force(vi, I[i] @ vi)
+            ci = ci + sp.mv(Ss[i][:, loc_a[i]], qdd_known[sl[i]][jnp.array(loc_a[i])])
+        pi = sp.cross_force(vi, sp.mv(I[i], vi))
         if fl[i] is not None:
             pi = pi - fl[i]
         vs.append(vi), cs_.append(ci), IA.append(I[i]), pA.append(pi)
@@ -112,17 +112,17 @@ def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
         if loc_p[i]:
             lp = jnp.array(loc_p[i])
             Sp = Ss[i][:, loc_p[i]]
-            U[i] = IA[i] @ Sp
-            D = Sp.T @ U[i] + jnp.diag(model.armature[sl[i]][lp])
+            U[i] = sp.mm(IA[i], Sp)
+            D = sp.mm(Sp.T, U[i]) + jnp.diag(model.armature[sl[i]][lp])
             Dinv[i] = jnp.linalg.inv(D) if len(loc_p[i]) > 1 else 1.0 / D
-            u[i] = tau_known[sl[i]][lp] - Sp.T @ pA[i]
+            u[i] = tau_known[sl[i]][lp] - sp.mv(Sp.T, pA[i])
             if par >= 0:
-                UD = U[i] @ Dinv[i]
+                UD = sp.mm(U[i], Dinv[i])
                 Ia = IA[i] - sp.mm(UD, U[i].T)
-                pa = pA[i] + Ia @ cs_[i] + UD @ u[i]
+                pa = pA[i] + sp.mv(Ia, cs_[i]) + sp.mv(UD, u[i])
         elif par >= 0:
             Ia = IA[i]
-            pa = pA[i] + IA[i] @ cs_[i]
+            pa = pA[i] + sp.mv(IA[i], cs_[i])
         if par >= 0:
             IA[par] = IA[par] + sp.transform_inertia(Rs[i], ps[i], Ia)
             pA[par] = pA[par] + sp.act_force(Rs[i], ps[i], pa)
@@ -136,13 +136,13 @@ def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
         res = jnp.zeros(model.joints[i].nv, dtype=ai.dtype)
         if loc_p[i]:
             lp = jnp.array(loc_p[i])
-            qp = Dinv[i] @ (u[i] - U[i].T @ ai)
-            ai = ai + Ss[i][:, loc_p[i]] @ qp
+            qp = sp.mv(Dinv[i], u[i] - sp.mv(U[i].T, ai))
+            ai = ai + sp.mv(Ss[i][:, loc_p[i]], qp)
             res = res.at[lp].set(qp)
         if loc_a[i]:
             la = jnp.array(loc_a[i])
-            f = IA[i] @ ai + pA[i]
-            ta = Ss[i][:, loc_a[i]].T @ f + model.armature[sl[i]][la] * qdd_known[sl[i]][la]
+            f = sp.mv(IA[i], ai) + pA[i]
+            ta = sp.mv(Ss[i][:, loc_a[i]].T, f) + model.armature[sl[i]][la] * qdd_known[sl[i]][la]
             res = res.at[la].set(ta)
         acc[i] = ai
         out[i] = res

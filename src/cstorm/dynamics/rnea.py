@@ -54,19 +54,19 @@ def _rnea(model, q, v, a, f_ext):
     vs, acc, fs = [], [], []
     for i, par in enumerate(model.parents):
         sl = slice(model.v_starts[i], model.v_starts[i] + model.joints[i].nv)
-        vJ = Ss[i] @ v[sl]
+        vJ = sp.mv(Ss[i], v[sl])
         vp = jnp.zeros(6, dtype=v.dtype) if par < 0 else vs[par]
         ap = a0 if par < 0 else acc[par]
         vi = sp.inv_act_motion(Rs[i], ps[i], vp) + vJ
-        ai = sp.inv_act_motion(Rs[i], ps[i], ap) + Ss[i] @ a[sl] + sp.cross_motion(vi, vJ)
-        fi = I[i] @ ai + sp.cross_force(vi, I[i] @ vi)
+        ai = sp.inv_act_motion(Rs[i], ps[i], ap) + sp.mv(Ss[i], a[sl]) + sp.cross_motion(vi, vJ)
+        fi = sp.mv(I[i], ai) + sp.cross_force(vi, sp.mv(I[i], vi))
         if fl[i] is not None:
             fi = fi - fl[i]
         vs.append(vi), acc.append(ai), fs.append(fi)
     tau = [None] * model.n_bodies
     for i in reversed(range(model.n_bodies)):
         sl = slice(model.v_starts[i], model.v_starts[i] + model.joints[i].nv)
-        tau[i] = Ss[i].T @ fs[i] + model.armature[sl] * a[sl]
+        tau[i] = sp.mv(Ss[i].T, fs[i]) + model.armature[sl] * a[sl]
         par = model.parents[i]
         if par >= 0:
             fs[par] = fs[par] + sp.act_force(Rs[i], ps[i], fs[i])

@@ -23,42 +23,55 @@ from helpers import manifold_fd, random_state, random_tree
 TOPOLOGIES = (0, 1, 2, 3, 5)
 PARAMS = (0, 1, 2)
 
+# Compile-time budget: these unrolled trees take ~5-40 s each to compile with XLA's full
+# CPU optimization on 2 cores; the tests only need correct numbers, so they compile with
+# the backend optimizations off (~2-3x faster), and every jitted function is reused
+# across parameter draws of one topology (same pytree structure: one compilation).
+jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0,
+                                                   "xla_llvm_disable_expensive_passes": True})
+
 
 @functools.lru_cache(maxsize=None)
 def _tree(topology, params):
     return random_tree(topology, params)
 
 
-def _active_mask(model, rng, kind):
+def _active_mask(model, topology, kind):
+    """Deterministic per (topology, kind), so compiled functions are shared by tests."""
     if kind == "all":
         return (True,) * model.nv
     if kind == "none":
         return (False,) * model.nv
-    # mixed: floating root passive, the rest random per DoF
-    m = [bool(x) for x in rng.integers(0, 2, model.nv)]
+    # mixed: floating root passive, the other DoFs active or passive at random
+    m = [bool(x) for x in np.random.default_rng(1000 + topology).integers(0, 2, model.nv)]
     for k in range(model.joints[0].nv):
         m[k] = False
     return tuple(m)
 
 
-def _inputs(model, seed, kind="mixed", with_fext=True):
+def _inputs(model, topology, seed, kind="mixed", with_fext=True, neutral=False):
     rng = np.random.default_rng(seed)
     q, v, a = random_state(model, rng)
-    active = _active_mask(model, rng, kind)
+    if neutral:  # zero angles, identity rotations
+        q = jnp.asarray(model.neutral())
+    active = _active_mask(model, topology, kind)
     act = np.array(active)
     tau = jnp.asarray(rng.normal(size=model.nv) * 3.0)
     f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6))) if with_fext else None
     return q, v, a[act], tau[~act], active, f_ext
 
 
-# jitted entry points (model and f_ext are traced; `active` is static)
-_y = jax.jit(DAD._y, static_argnums=(5,))
-_hyb_ad = jax.jit(DAD.hybrid_dynamics_derivatives_ad, static_argnames=("active",))
-_rnea_ad = jax.jit(DAD.rnea_derivatives_ad)
-_aba_ad = jax.jit(DAD.aba_derivatives_ad)
+_y = jit(DAD._y, static_argnums=(5,))
+_hyb_ad = jit(DAD.hybrid_dynamics_derivatives_ad, static_argnames=("active",))
+_hyb = jit(D.hybrid_dynamics_derivatives, static_argnames=("active",))
+_rnea_ad = jit(DAD.rnea_derivatives_ad)
+_rnea = jit(D.rnea_derivatives)
+_aba_ad = jit(DAD.aba_derivatives_ad)
+_aba = jit(D.aba_derivatives)
 
 
 def _rel(a, b):
+    """max |a - b| / max(1, max |b|)."""
     a, b = np.asarray(a), np.asarray(b)
     if a.size == 0 and b.size == 0:
         return 0.0
@@ -66,7 +79,8 @@ def _rel(a, b):
 
 
 def _fd_all(model, q, v, aa, tp, active, f_ext, eps=1e-6):
-    """Central finite differences of the hybrid output w.r.t. every argument."""
+    """Central finite differences of the hybrid output w.r.t. every argument (the
+    q-columns on the manifold, `helpers.manifold_fd`)."""
     f0 = jnp.zeros((model.n_bodies, 6)) if f_ext is None else f_ext
 
     def col(fun, x, k):
@@ -75,7 +89,7 @@ def _fd_all(model, q, v, aa, tp, active, f_ext, eps=1e-6):
 
     def jac(fun, x):
         if x.size == 0:
-            return np.zeros((model.nv, 0))
+            return np.zeros((model.nv,) + x.shape)
         return np.stack([col(fun, x, k) for k in range(x.size)], axis=-1).reshape((model.nv,) + x.shape)
 
     dq = manifold_fd(lambda qq: _y(model, qq, v, aa, tp, active, f0), model, q, eps)
@@ -86,37 +100,180 @@ def _fd_all(model, q, v, aa, tp, active, f_ext, eps=1e-6):
     return dq, dv, da, dt, df
 
 
+NAMES = ("y", "dq", "dv", "da_active", "dtau_passive", "df_ext")
+
+
 # ------------------------------------------------------------------ autodiff vs finite differences
-@pytest.mark.parametrize("topology", (0, 1, 3))
-@pytest.mark.parametrize("kind", ("mixed", "all", "none"))
+@pytest.mark.parametrize("topology,kind", [(0, "mixed"), (1, "mixed"), (3, "mixed"), (1, "all"), (1, "none")])
 def test_autodiff_reference_matches_finite_differences(topology, kind):
+    """Tier (c): the oracle itself against central differences on the manifold, at a
+    random point and at zero angles / identity rotations."""
     model = _tree(topology, 0)
     for seed, neutral in ((topology, False), (topology + 100, True)):
-        q, v, aa, tp, active, f_ext = _inputs(model, seed, kind)
-        if neutral:  # zero angles, identity rotations
-            q = jnp.asarray(model.neutral())
+        q, v, aa, tp, active, f_ext = _inputs(model, topology, seed, kind, neutral=neutral)
         r = _hyb_ad(model, q, v, aa, tp, active=active, f_ext=f_ext)
         fd = _fd_all(model, q, v, aa, tp, active, f_ext)
-        for name, got, want in zip(("dq", "dv", "da_active", "dtau_passive", "df_ext"), r[1:], fd):
-            assert _rel(got, want) < 1e-6, (name, _rel(got, want))
-        y = _y(model, q, v, aa, tp, active, f_ext)
-        np.testing.assert_allclose(r.y, y, rtol=0, atol=1e-12)
+        for name, got, want in zip(NAMES[1:], r[1:], fd):
+            assert _rel(got, want) < 1e-6, (name, neutral, _rel(got, want))
+        np.testing.assert_allclose(r.y, _y(model, q, v, aa, tp, active, f_ext), rtol=0, atol=1e-12)
 
 
-def test_autodiff_rnea_and_aba_reference_identities():
-    model = _tree(1, 0)
-    q, v, a = random_state(model, np.random.default_rng(3))
-    f_ext = jnp.asarray(np.random.default_rng(4).normal(size=(model.n_bodies, 6)))
-    r = _rnea_ad(model, q, v, a, f_ext)
-    np.testing.assert_allclose(r.da, cs.mass_matrix(model, q), atol=1e-12)
-    np.testing.assert_allclose(r.tau, cs.rnea(model, q, v, a, f_ext), atol=1e-12)
-    fd = manifold_fd(lambda qq: cs.rnea(model, qq, v, a, f_ext), model, q)
-    assert _rel(r.dq, fd) < 1e-6
-    s = _aba_ad(model, q, v, r.tau, f_ext)
+# ------------------------------------------------------------------ analytic vs autodiff
+def _compare(got, want, tol=1e-10):
+    errs = {n: _rel(g, w) for n, g, w in zip(got._fields, got, want)}
+    assert max(errs.values()) < tol, errs
+    return errs
+
+
+@pytest.mark.parametrize("topology", TOPOLOGIES)
+def test_analytic_hybrid_matches_autodiff(topology):
+    """Several parameter draws of one topology (one compilation each way), random
+    states and the neutral configuration, external wrenches on every body."""
+    for p in PARAMS:
+        model = _tree(topology, p)
+        assert any(isinstance(j, (cs.Free, cs.Ball)) for j in model.joints)
+        for seed, neutral in ((10 * p, False), (10 * p + 1, True)):
+            q, v, aa, tp, active, f_ext = _inputs(model, topology, seed, neutral=neutral)
+            _compare(_hyb(model, q, v, aa, tp, active=active, f_ext=f_ext),
+                     _hyb_ad(model, q, v, aa, tp, active=active, f_ext=f_ext))
+
+
+@pytest.mark.parametrize("topology", (1, 2))
+def test_analytic_hybrid_without_fext(topology):
+    """f_ext=None: df_ext is still returned (derivative at a zero wrench)."""
+    for p in PARAMS[:2]:
+        model = _tree(topology, p)
+        q, v, aa, tp, active, _ = _inputs(model, topology, p, with_fext=False)
+        got = _hyb(model, q, v, aa, tp, active=active)
+        assert got.df_ext.shape == (model.nv, model.n_bodies, 6)
+        _compare(got, _hyb_ad(model, q, v, aa, tp, active=active))
+
+
+@pytest.mark.parametrize("topology", (1, 3))
+@pytest.mark.parametrize("with_fext", (True, False))
+def test_analytic_rnea_and_aba_match_autodiff(topology, with_fext):
+    for p in PARAMS[:2]:
+        model = _tree(topology, p)
+        rng = np.random.default_rng(p)
+        q, v, a = random_state(model, rng)
+        f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6))) if with_fext else None
+        r = _compare(_rnea(model, q, v, a, f_ext), _rnea_ad(model, q, v, a, f_ext))
+        tau = jnp.asarray(rng.normal(size=model.nv))
+        _compare(_aba(model, q, v, tau, f_ext), _aba_ad(model, q, v, tau, f_ext))
+        del r
+
+
+def test_identities():
+    """rnea: tau, da = M; aba: a = aba, dtau = M^-1, d a = -M^-1 d rnea; hybrid with all
+    DoFs active / passive equals rnea / aba derivatives; the autodiff method switch."""
+    topology = 1
+    model = _tree(topology, 0)
+    rng = np.random.default_rng(3)
+    q, v, a = random_state(model, rng)
+    f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6)))
+    r = _rnea(model, q, v, a, f_ext)
+    M = np.asarray(cs.mass_matrix(model, q))
+    np.testing.assert_allclose(r.da, M, atol=1e-12)
+    np.testing.assert_allclose(r.tau, cs.rnea(model, q, v, a, f_ext), atol=1e-11)
+    s = _aba(model, q, v, r.tau, f_ext)
     np.testing.assert_allclose(s.a, a, atol=1e-9)
-    # aba = rnea^-1: da/dtau = M^-1 and da/dx = -M^-1 drnea/dx
-    Minv = np.linalg.inv(np.asarray(r.da))
+    np.testing.assert_allclose(s.a, cs.aba(model, q, v, r.tau, f_ext), atol=1e-9)
+    Minv = np.linalg.inv(M)
     assert _rel(s.dtau, Minv) < 1e-10
     assert _rel(s.dq, -Minv @ r.dq) < 1e-9
     assert _rel(s.dv, -Minv @ r.dv) < 1e-9
     assert _rel(s.df_ext, -np.einsum("ij,jbk->ibk", Minv, r.df_ext)) < 1e-9
+    # df_ext = -J^T of the body's point Jacobian at the world origin, re-expressed
+    for b in range(model.n_bodies):
+        Jp = np.asarray(cs.point_jacobian(model, q, b))  # [omega; pdot of body origin], world axes
+        x = np.asarray(cs.forward_kinematics(model, q)[b, :3, 3])
+        Jo = np.vstack([Jp[:3], Jp[3:] + np.cross(x[:, None], Jp[:3], axis=0)])  # twist about the origin
+        np.testing.assert_allclose(r.df_ext[:, b, :], -Jo.T, atol=1e-12)
+    h = _hyb(model, q, v, a, jnp.zeros(0), active=(True,) * model.nv, f_ext=f_ext)
+    for x, y in zip(h, (r.tau, r.dq, r.dv, r.da, None, r.df_ext)):
+        if y is not None:
+            assert _rel(x, y) < 1e-12
+    with pytest.raises(cs.InputError):
+        D.rnea_derivatives(model, q, v, a, method="symbolic")
+    with pytest.raises(cs.InputError):
+        D.hybrid_dynamics_derivatives(model, q, v, a[:3], a[3:], (True,) * model.nv)
+
+
+# ------------------------------------------------------------------ real models vs Pinocchio
+def _pin_case(rel, floating):
+    """(model, pinocchio model, P) with v_pin = P v_cs for a URDF of example-robot-data."""
+    pin = pytest.importorskip("pinocchio")
+    import importlib.metadata
+    import os
+    import warnings
+
+    try:
+        robots = importlib.metadata.distribution("example-robot-data").locate_file(
+            "cmeel.prefix/share/example-robot-data/robots")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    path = os.path.join(str(robots), rel)
+    if not os.path.isfile(path):
+        pytest.skip(f"{rel} not found")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = cs.load_urdf(path, floating_base=floating, load_meshes=False, inertia_check="lenient")
+    pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(path)
+    P = np.zeros((pm.nv, model.nv))
+    for i, (name, j) in enumerate(zip(model.joint_names, model.joints)):
+        pj = pm.joints[pm.getJointId("root_joint" if name == "root" else name)]
+        vs = model.v_starts[i]
+        if j.nv == 6:  # cstorm [omega; v] -> Pinocchio [v; omega]
+            P[pj.idx_v: pj.idx_v + 3, vs + 3: vs + 6] = np.eye(3)
+            P[pj.idx_v + 3: pj.idx_v + 6, vs: vs + 3] = np.eye(3)
+        else:
+            assert j.nv == pj.nv == 1 and pj.nq == 1, name
+            P[pj.idx_v, vs] = 1.0
+    return model, pm, P
+
+
+def _q_to_pin(model, pm, q):
+    import pinocchio as pin
+
+    qp = pin.neutral(pm)
+    for i, (name, j) in enumerate(zip(model.joint_names, model.joints)):
+        pj = pm.joints[pm.getJointId("root_joint" if name == "root" else name)]
+        s, t = model.q_starts[i], pj.idx_q
+        if j.nq == 7:  # [x y z qw qx qy qz] -> [x y z qx qy qz qw]
+            qp[t: t + 3], qp[t + 3: t + 6], qp[t + 6] = q[s: s + 3], q[s + 4: s + 7], q[s + 3]
+        else:
+            qp[t] = q[s]
+    return qp
+
+
+@pytest.mark.parametrize("rel,floating", [("ur_description/urdf/ur5_robot.urdf", None),
+                                          ("solo_description/robots/solo12.urdf", "free")],
+                         ids=["ur5", "solo12"])
+def test_against_pinocchio(rel, floating):
+    """Tier (a): Pinocchio's computeRNEADerivatives / computeABADerivatives (no external
+    forces: Pinocchio's are body-fixed, ours world-fixed, so their q-derivatives differ)."""
+    import pinocchio as pin
+
+    model, pm, P = _pin_case(rel, floating)
+    pd = pm.createData()
+    rng = np.random.default_rng(7)
+    arm = rng.uniform(0.0, 0.05, model.nv) * np.array([j.nv == 1 for j in model.joints for _ in range(j.nv)])
+    model = model.replace(armature=jnp.asarray(arm))
+    pm.armature = P @ arm
+    sym = lambda X: np.triu(X) + np.triu(X, 1).T  # Pinocchio fills the upper triangle of M, M^-1
+    for k in range(2):
+        q = jnp.asarray(model.random_q(rng) if k else model.neutral())
+        v, a, tau = (rng.normal(size=model.nv) for _ in range(3))
+        qp = _q_to_pin(model, pm, np.asarray(q))
+        dq, dv, da = pin.computeRNEADerivatives(pm, pd, qp, P @ v, P @ a)
+        r = _rnea(model, q, jnp.asarray(v), jnp.asarray(a), None)
+        assert _rel(r.tau, P.T @ pin.rnea(pm, pd, qp, P @ v, P @ a)) < 1e-9
+        assert _rel(r.dq, P.T @ dq @ P) < 1e-9
+        assert _rel(r.dv, P.T @ dv @ P) < 1e-9
+        assert _rel(r.da, P.T @ sym(da) @ P) < 1e-9
+        dq, dv, dt = pin.computeABADerivatives(pm, pd, qp, P @ v, P @ tau)
+        s = _aba(model, q, jnp.asarray(v), jnp.asarray(tau), None)
+        assert _rel(s.a, P.T @ pin.aba(pm, pd, qp, P @ v, P @ tau)) < 1e-9
+        assert _rel(s.dq, P.T @ dq @ P) < 1e-9
+        assert _rel(s.dv, P.T @ dv @ P) < 1e-9
+        assert _rel(s.dtau, P.T @ sym(dt) @ P) < 1e-9

@@ -156,10 +156,10 @@ def load_mjcf(path_or_xml, *, assets: dict | None = None, inertia_check: str = "
     # effort limits from actuators on hinge/slide joints
     effort = {}
     for a in range(m.nu):
-        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+        if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             continue
         j = int(m.actuator_trnid[a, 0])
-        if m.jnt_type[j] not in (JT.mjJNT_HINGE, JT.mjJNT_SLIDE):
+        if int(m.jnt_type[j]) not in (int(JT.mjJNT_HINGE), int(JT.mjJNT_SLIDE)):
             continue
         if m.actuator_forcelimited[a]:
             e = float(np.abs(m.actuator_forcerange[a]).max())

@@ -65,4 +65,7 @@ def body_velocities(model, q, v):
 def frame_pose(model, q, name):
     """(4, 4) world pose of a named frame or body."""
     b, T = model.frame_pose(name)
+    if b < 0:  # a frame welded to the world (e.g. a fixed-base robot's root link)
+        q = _checks.config(model, q, "frame_pose")
+        return jnp.asarray(T, dtype=q.dtype)
     return forward_kinematics(model, q)[b] @ T

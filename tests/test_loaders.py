@@ -170,6 +170,7 @@ def test_urdf_contents(write):
     np.testing.assert_allclose(model.geom_poses[model.geom_names.index("c")][:3, 3], [0, 0, 0.5])
     assert isinstance(kinds["l1_collision1"], cs.Sphere) and isinstance(kinds["l1_collision2"], cs.Capsule)
     assert "tool" in model.frame_names
+    np.testing.assert_allclose(cs.frame_pose(model, jnp.zeros(2), "base"), np.eye(4))  # welded to the world
     b, T = model.frame_pose("tool")
     assert b == 1 and np.allclose(T[:3, 3], [0.2, 0, 0])
     text = describe(model)

@@ -16,8 +16,10 @@ What is read (URDF spec, http://wiki.ros.org/urdf/XML):
 - ``<joint>``: ``revolute``, ``continuous`` (both nq = nv = 1; cstorm stores the angle,
   not Pinocchio's (cos, sin)), ``prismatic``, ``fixed``, ``floating`` (a free joint);
   ``planar`` is refused. ``<origin>`` (parent link frame from joint frame), ``<axis>``
-  (default (1, 0, 0), in the joint frame), ``<limit>`` (lower, upper, velocity, effort),
-  ``<dynamics damping>``. ``<mimic>`` is not modelled: a mimic joint becomes an
+  (default (1, 0, 0), in the joint frame), ``<limit>`` (lower, upper, velocity, effort;
+  lower/upper default to 0 as in the spec, velocity/effort to +inf; a revolute or
+  prismatic joint without ``<limit>`` is unlimited), ``<dynamics damping>`` (friction
+  is ignored). ``<mimic>`` is not modelled: a mimic joint becomes an
   independent DoF (one warning lists them), as in Pinocchio's default.
 
 Mesh paths: ``package://pkg/rest`` is looked up in ``package_dirs`` (a dict

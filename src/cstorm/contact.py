@@ -28,9 +28,10 @@ Conventions (SI units)
   derivative is NaN, at zero slip and zero velocity included.
 
 Layout: smoothing functions, then `ContactParams`, then the force law at one contact
-point (`normal_force`, `friction_force`, `point_contact_force`). Environment and
-contact-point assembly (``Environment``, ``ground``, ``contact_forces``) build on these
-and go at the end of this module.
+point (`normal_force`, `friction_force`, `point_contact_force`), then contact points
+and their assembly into body wrenches (`contact_forces`, `ContactData`,
+`contact_labels`) for a robot in an `cstorm.environment.Environment` (DESIGN.md items
+3-4; see `contact_forces` for the contact points of each shape).
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ __all__ = [
     "normal_force",
     "friction_force",
     "point_contact_force",
+    "ContactData",
+    "contact_forces",
+    "contact_labels",
 ]
 
 
@@ -291,6 +295,405 @@ def point_contact_force(d, n, v, params: ContactParams):
     return f, N_mag, f_t
 
 
+
 # ---------------------------------------------------------------------------------------
-# Environment and contact-point assembly: Environment, ground, contact_forces (to come).
+# Contact points and f_ext assembly
 # ---------------------------------------------------------------------------------------
+
+import fnmatch as _fnmatch
+from collections.abc import Mapping as _Mapping
+from typing import NamedTuple as _NamedTuple
+
+from . import _pytree
+from .environment import Environment
+from .errors import InputError
+from .geometry.distance import signed_distance
+from .geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
+from .dynamics import _checks
+from .dynamics.kinematics import joint_placements, world_placements
+from . import spatial as _sp
+
+_BOX_CORNERS = np.array([[sx, sy, sz] for sz in (-1.0, 1.0) for sy in (-1.0, 1.0) for sx in (-1.0, 1.0)])
+
+
+def _n_features(shape, n_rim: int) -> int:
+    if isinstance(shape, Sphere):
+        return 1
+    if isinstance(shape, Capsule):
+        return 2
+    if isinstance(shape, Box):
+        return 8
+    if isinstance(shape, Cylinder):
+        return 2 * n_rim
+    if isinstance(shape, ConvexMesh):
+        return int(np.shape(shape.vertices)[0])
+    raise InputError(f"contact_forces: no contact features for a robot geom of type {type(shape).__name__}")
+
+
+def _features(shape, n_rim: int):
+    """Contact features of a robot shape against a plane, in the shape's frame: centres
+    ``(m, 3)`` and radii ``(m,)`` (the feature is the ball of that radius)."""
+    if isinstance(shape, Sphere):
+        r = jnp.asarray(shape.radius)
+        return jnp.zeros((1, 3), r.dtype), r[None]
+    if isinstance(shape, Capsule):
+        h = 0.5 * jnp.asarray(shape.length)
+        z = jnp.zeros_like(h)
+        P = jnp.stack([jnp.stack([z, z, -h]), jnp.stack([z, z, h])])
+        return P, jnp.broadcast_to(jnp.asarray(shape.radius), (2,))
+    if isinstance(shape, Box):
+        P = jnp.asarray(_BOX_CORNERS) * jnp.asarray(shape.half_extents)
+        return P, jnp.zeros(8, P.dtype)
+    if isinstance(shape, Cylinder):
+        th = 2.0 * np.pi * np.arange(n_rim) / n_rim
+        ring = np.stack([np.cos(th), np.sin(th)], axis=1)  # (n, 2)
+        r, h = jnp.asarray(shape.radius), 0.5 * jnp.asarray(shape.length)
+        xy = r * jnp.asarray(np.concatenate([ring, ring]))
+        z = h * jnp.asarray(np.concatenate([-np.ones(n_rim), np.ones(n_rim)]))
+        P = jnp.concatenate([xy, z[:, None]], axis=1)
+        return P, jnp.zeros(2 * n_rim, P.dtype)
+    if isinstance(shape, ConvexMesh):
+        V = jnp.asarray(shape.vertices)
+        return V, jnp.zeros(V.shape[0], V.dtype)
+    raise InputError(f"contact_forces: no contact features for a robot geom of type {type(shape).__name__}")
+
+
+class _Layout(_NamedTuple):
+    plane_pairs: tuple  # (geom index, obstacle index, n features)
+    near_pairs: tuple  # (geom index, obstacle index)
+    self_pairs: tuple  # (geom index a, geom index b)
+    labels: tuple  # per point: (geom name, obstacle or other geom name, feature index or -1)
+    body: tuple  # per point: robot body index (geom a's body for self pairs)
+    other_body: tuple  # per point: -1 (obstacle) or geom b's body (self pairs)
+    pair_of_point: tuple  # per point: (geom name, other name), for per-pair parameters
+
+
+def _is_pattern(s: str) -> bool:
+    return any(c in s for c in "*?[")
+
+
+def _movable(model, g: int) -> bool:
+    return model.geom_bodies[g] >= 0 and not isinstance(model.geoms[g], Plane)
+
+
+def _match_geoms(model, pattern: str, argname: str):
+    """Indices of the geoms matching ``pattern``; an exact name of a world-fixed or plane
+    geom is an error, patterns skip those silently."""
+    out = []
+    for g, name in enumerate(model.geom_names):
+        if _fnmatch.fnmatchcase(name, pattern):
+            if _movable(model, g):
+                out.append(g)
+            elif not _is_pattern(pattern):
+                why = "is attached to the world" if model.geom_bodies[g] < 0 else "is a plane"
+                raise InputError(f"contact_forces: {argname} names geom {name!r}, which {why}; only geoms of moving "
+                                 "bodies touch obstacles")
+    return out
+
+
+def _layout(model, env: Environment) -> _Layout:
+    """Static contact-point layout of (model, environment): which pairs, how many points,
+    their labels and bodies. Raises `InputError` on unknown names."""
+    gnames, onames = model.geom_names, env.names
+    if env.pairs is None:
+        sel = [(g, o) for g in range(len(gnames)) if _movable(model, g) for o in range(len(onames))]
+    else:
+        bad = sorted({gp for gp, _ in env.pairs if not any(_fnmatch.fnmatchcase(n, gp) for n in gnames)})
+        if bad:
+            raise InputError(f"contact_forces: Environment.pairs name unknown robot geoms {bad}; the model "
+                             f"{model.name!r} has geoms {list(gnames)}")
+        chosen = set()
+        for gp, op in env.pairs:
+            for g in _match_geoms(model, gp, "Environment.pairs"):
+                for o, on in enumerate(onames):
+                    if _fnmatch.fnmatchcase(on, op):
+                        chosen.add((g, o))
+        sel = sorted(chosen)
+    self_sel = set()
+    if env.self_collision:
+        bad = sorted({p for pair in env.self_collision for p in pair
+                      if not any(_fnmatch.fnmatchcase(n, p) for n in gnames)})
+        if bad:
+            raise InputError(f"contact_forces: Environment.self_collision names unknown robot geoms {bad}; the "
+                             f"model {model.name!r} has geoms {list(gnames)}")
+        for pa, pb in env.self_collision:
+            for a in _match_geoms(model, pa, "Environment.self_collision"):
+                for b in _match_geoms(model, pb, "Environment.self_collision"):
+                    if model.geom_bodies[a] == model.geom_bodies[b]:
+                        if not (_is_pattern(pa) or _is_pattern(pb)):
+                            raise InputError(
+                                f"contact_forces: Environment.self_collision pairs geoms {gnames[a]!r} and "
+                                f"{gnames[b]!r}, which are on the same body "
+                                f"{model.body_names[model.geom_bodies[a]]!r}")
+                        continue
+                    self_sel.add((min(a, b), max(a, b)))
+    plane_pairs, near_pairs = [], []
+    for g, o in sel:
+        if isinstance(env.obstacles[o].shape, Plane):
+            plane_pairs.append((g, o, _n_features(model.geoms[g], env.cylinder_rim_points)))
+        else:
+            near_pairs.append((g, o))
+    self_pairs = sorted(self_sel)
+    labels, body, other, pairs = [], [], [], []
+    for g, o, m in plane_pairs:
+        for j in range(m):
+            labels.append((gnames[g], onames[o], j)), body.append(model.geom_bodies[g]), other.append(-1)
+            pairs.append((gnames[g], onames[o]))
+    for g, o in near_pairs:
+        labels.append((gnames[g], onames[o], -1)), body.append(model.geom_bodies[g]), other.append(-1)
+        pairs.append((gnames[g], onames[o]))
+    for a, b in self_pairs:
+        labels.append((gnames[a], gnames[b], -1)), body.append(model.geom_bodies[a])
+        other.append(model.geom_bodies[b]), pairs.append((gnames[a], gnames[b]))
+    return _Layout(tuple(plane_pairs), tuple(near_pairs), tuple(self_pairs), tuple(labels), tuple(body),
+                   tuple(other), tuple(pairs))
+
+
+def contact_labels(model, env: Environment) -> tuple:
+    """The static labels of the contact points `contact_forces` returns, in its order:
+    a tuple of ``(geom name, obstacle name (or other geom name), feature index)``, the
+    feature index being -1 for near-point pairs. Use it to build per-point parameters."""
+    if not isinstance(env, Environment):
+        raise InputError(f"contact_labels: env must be a cstorm Environment, got {type(env).__name__}")
+    return _layout(model, env).labels
+
+
+def _point_params(params, lay: _Layout) -> ContactParams:
+    """ContactParams whose leaves broadcast against the (k,) contact points."""
+    k = len(lay.labels)
+    if isinstance(params, ContactParams):
+        for name in params._data_fields:
+            shp = np.shape(getattr(params, name))
+            if shp not in ((), (k,)):
+                raise InputError(f"contact_forces: ContactParams.{name} has shape {shp}; it must be a scalar or have "
+                                 f"one entry per contact point ({k},) (see cstorm.contact.contact_labels)")
+        return params
+    if not isinstance(params, _Mapping):
+        raise InputError("contact_forces: params must be a ContactParams or a mapping {(geom, obstacle): "
+                         f"ContactParams}}, got {type(params).__name__}")
+    keys = list(params.keys())
+    for key in keys:
+        if not (isinstance(key, tuple) and len(key) == 2 and all(isinstance(s, str) for s in key)):
+            raise InputError(f"contact_forces: params keys must be (geom, obstacle) name patterns, got {key!r}")
+        if not isinstance(params[key], ContactParams):
+            raise InputError(f"contact_forces: params[{key!r}] must be a ContactParams, got "
+                             f"{type(params[key]).__name__}")
+    if not keys:
+        raise InputError("contact_forces: params is an empty mapping")
+    pulling = {params[key].pulling for key in keys}
+    if len(pulling) > 1:
+        raise InputError("contact_forces: all ContactParams in params must have the same `pulling`")
+
+    def find(g, o):
+        for key in keys:
+            if (_fnmatch.fnmatchcase(g, key[0]) and _fnmatch.fnmatchcase(o, key[1])):
+                return key
+        return None
+
+    per_point = []
+    unmatched = set()
+    for g, o in lay.pair_of_point:
+        key = find(g, o) or find(o, g)
+        if key is None:
+            unmatched.add((g, o))
+        per_point.append(key)
+    if unmatched:
+        raise InputError(f"contact_forces: no entry of params matches the contact pairs {sorted(unmatched)}; keys "
+                         f"are {keys} (first match wins; add ('*', '*') for a default)")
+    first = params[keys[0]]
+    fields = {}
+    for name in first._data_fields:
+        fields[name] = jnp.stack([jnp.asarray(getattr(params[key], name), dtype=jnp.float64) for key in per_point]) \
+            if k else jnp.zeros((0,))
+    return _pytree.replace(first, **fields)
+
+
+@_pytree.pytree_dataclass(meta=("body", "other_body", "labels"))
+class ContactData:
+    """Per-contact-point data and the assembled external wrenches (a JAX pytree).
+
+    Array fields (``k`` contact points, world coordinates, SI units):
+      d (k,): signed distance of the feature to the obstacle, m (< 0 penetrating).
+      p_robot (k, 3): the robot's contact point (deepest point of the feature).
+      p_obstacle (k, 3): the near point on the obstacle (``p_robot - d n``).
+      n (k, 3): unit normal from the obstacle towards the robot.
+      velocity (k, 3): velocity of ``p_robot`` as a point of its body, m/s (for
+        self-collision: of body a relative to body b at the midpoint of the witness
+        points).
+      normal_magnitude (k,): ``N`` (N), along ``n``.
+      normal_force (k, 3), friction_force (k, 3): N, force on the robot (on body a).
+      f_ext (n_bodies, 6): ``[torque about the world origin; force]`` per body, world
+        coordinates, what `rnea`/`aba`/`hybrid_dynamics` take.
+    Static fields:
+      body (k,): robot body of each point; other_body (k,): -1, or body b of a
+        self-collision pair (which receives the opposite force);
+      labels (k,): ``(geom name, obstacle name (or geom b's name), feature index)``,
+        feature index -1 for near-point pairs.
+    """
+
+    d: jnp.ndarray
+    p_robot: jnp.ndarray
+    p_obstacle: jnp.ndarray
+    n: jnp.ndarray
+    velocity: jnp.ndarray
+    normal_magnitude: jnp.ndarray
+    normal_force: jnp.ndarray
+    friction_force: jnp.ndarray
+    f_ext: jnp.ndarray
+    body: tuple = ()
+    other_body: tuple = ()
+    labels: tuple = ()
+
+    @property
+    def force(self):
+        """(k, 3) total contact force on the robot point, N."""
+        return self.normal_force + self.friction_force
+
+
+def _world_twists(model, Rs, ps, Ss, oR, v):
+    """World-aligned angular velocity and body-origin velocity, each (n_bodies, 3)."""
+    vs = []
+    for i, par in enumerate(model.parents):
+        vj = Ss[i] @ v[model.v_starts[i]: model.v_starts[i] + model.joints[i].nv]
+        vs.append(vj if par < 0 else _sp.inv_act_motion(Rs[i], ps[i], vs[par]) + vj)
+    tw = jnp.stack(vs)
+    R = jnp.stack(oR)
+    return jnp.einsum("bij,bj->bi", R, tw[:, :3]), jnp.einsum("bij,bj->bi", R, tw[:, 3:])
+
+
+def contact_forces(model, env: Environment, params, q, v) -> ContactData:
+    """Smooth penalty contact forces between a robot and its environment, and the body
+    wrenches they make.
+
+    Args:
+      model: the robot `Model` (collision shapes ``model.geoms`` on ``geom_bodies`` at
+        ``geom_poses``, body from shape).
+      env: `cstorm.Environment` (obstacles and pair selection).
+      params: `ContactParams` applied to every point (its leaves scalars or ``(k,)``, one
+        entry per contact point in the order of `contact_labels`), or a mapping
+        ``{(geom pattern, obstacle pattern): ContactParams}`` for per-pair values
+        (``fnmatch`` patterns, first matching key in insertion order wins, self-collision
+        pairs match either order; every pair must match a key; all entries must share
+        ``pulling``). E.g. ``{("hand*", "ground"): rubber, ("*", "*"): default}``.
+      q: (nq,) configuration. v: (nv,) velocity.
+    Returns:
+      `ContactData` with per-point ``d, p_robot, p_obstacle, n, velocity,
+      normal_magnitude, normal_force, friction_force`` and ``f_ext`` (n_bodies, 6).
+
+    Contact points (``k`` in all, static; order: plane pairs with their features, then
+    near-point pairs, then self-collision pairs; pairs in (geom, obstacle) index order):
+
+    - Robot geom vs a `Plane` obstacle (ground, incline): one point per feature, each
+      the ball ``(centre c, radius r)`` whose distance to the plane
+      ``d = N . c - r - offset`` is smooth in ``q``; the robot point is the feature's
+      deepest point ``c - r N``:
+        * `Sphere`: 1 (its centre, r = radius);
+        * `Capsule`: 2 (the end spheres, centres ``(0, 0, +-length/2)``);
+        * `Box`: 8 corners (r = 0);
+        * `Cylinder`: ``env.cylinder_rim_points`` (default 8) equally spaced points on
+          each end circle, angles ``2 pi i / n`` from local x, first the ``z = -length/2``
+          rim then the ``+length/2`` rim: 16 in all by default. A cylinder lying on its
+          side thus rests on a ``n``-gon prism: its centre height varies by
+          ``radius (1 - cos(pi / n))`` (7.6 % of the radius for n = 8) as it rolls;
+          raise ``n`` or use a capsule for wheels;
+        * `ConvexMesh`: every vertex (r = 0).
+    - Robot geom vs any other obstacle (a box step, a sphere): one near-point pair from
+      `cstorm.signed_distance` (robot shape as ``a``, obstacle as ``b``), so it jumps
+      between witnesses where the nearest feature changes (a box resting on a
+      platform top is held at one point).
+    - Self-collision pairs (opt-in): one near-point pair; the force ``f`` on body a and
+      ``-f`` on body b both act at the midpoint of the witness points (no net wrench),
+      ``velocity`` is that of a relative to b at that point.
+
+    Forces follow `point_contact_force` with the velocity of ``p_robot`` as a point of
+    its body (``v_o + omega x (p_robot - o)`` from the body twists, computed once for
+    all bodies). Each point's wrench ``[p x f; f]`` (``p = p_robot``) is summed into its
+    body's row of ``f_ext``, so ``rnea(.., f_ext=0) - rnea(.., f_ext) = sum_k J_k^T f_k``
+    with ``J_k`` the linear rows of ``point_jacobian`` at ``p_robot``.
+
+    Friction near zero slip is a viscous damper ``1.5 mu N / v_max`` (N s/m). A body on
+    an incline of angle ``theta`` with ``tan(theta) < mu`` therefore creeps downhill at
+    the speed ``s`` that solves ``gamma(s) = tan(theta) / mu``, i.e.
+    ``1.5 x - 0.5 x^3 = tan(theta)/mu`` with ``x = s / v_max``; for small ratios
+    ``s ~= v_max tan(theta) / (1.5 mu)`` (e.g. 0.0117 m/s at 5 deg, mu = 0.5,
+    v_max = 0.1; verified by simulation in tests/test_contact.py). Lower ``v_max``
+    to creep less (at the price of a stiffer damper).
+
+    Works under ``jit``, ``vmap`` and ``grad``/``jacfwd`` (w.r.t. q, v, model, env and
+    params leaves). Unknown geom or obstacle names in ``env.pairs`` raise `InputError`.
+    """
+    if not isinstance(env, Environment):
+        raise InputError(f"contact_forces: env must be a cstorm Environment, got {type(env).__name__}")
+    q = _checks.config(model, q, "contact_forces")
+    v = _checks.vec(model, v, model.nv, "v", "contact_forces")
+    lay = _layout(model, env)
+    P = _point_params(params, lay)
+    k, nb = len(lay.labels), model.n_bodies
+    dtype = jnp.result_type(q.dtype, v.dtype, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    if k == 0:
+        z1, z3 = jnp.zeros((0,), dtype), jnp.zeros((0, 3), dtype)
+        return ContactData(z1, z3, z3, z3, z3, z1, z3, z3, jnp.zeros((nb, 6), dtype), (), (), ())
+
+    Rs, ps, Ss = joint_placements(model, q)
+    oR, op = world_placements(model, Rs, ps)
+    Rw, pw = jnp.stack(oR), jnp.stack(op)
+    w, vo = _world_twists(model, Rs, ps, Ss, oR, v)
+
+    def point_velocity(b, x):  # b: static index array, x: (m, 3) world points
+        return vo[b] + jnp.cross(w[b], x - pw[b])
+
+    ds, p_rob, p_obs, ns, vel, app = [], [], [], [], [], []
+    # --- plane pairs: all features stacked, one array computation -------------------
+    if lay.plane_pairs:
+        feats = {}
+        Pb, rad, Nw, off, bidx = [], [], [], [], []
+        for g, o, m in lay.plane_pairs:
+            if g not in feats:
+                Pl, r = _features(model.geoms[g], env.cylinder_rim_points)
+                Tg = model.geom_poses[g]
+                feats[g] = (Pl @ Tg[:3, :3].T + Tg[:3, 3], r)
+            pb, r = feats[g]
+            ob = env.obstacles[o]
+            N = ob.pose[:3, :3] @ ob.shape.normal
+            Pb.append(pb), rad.append(r)
+            Nw.append(jnp.broadcast_to(N, (m, 3)))
+            off.append(jnp.broadcast_to(ob.shape.offset + N @ ob.pose[:3, 3], (m,)))
+            bidx += [model.geom_bodies[g]] * m
+        Pb, rad, Nw, off = (jnp.concatenate(a) for a in (Pb, rad, Nw, off))
+        bidx = np.asarray(bidx)
+        x = jnp.einsum("kij,kj->ki", Rw[bidx], Pb) + pw[bidx]
+        pr = x - rad[:, None] * Nw
+        d = jnp.sum(Nw * x, axis=1) - rad - off
+        ds.append(d), p_rob.append(pr), p_obs.append(pr - d[:, None] * Nw), ns.append(Nw)
+        vel.append(point_velocity(bidx, pr)), app.append(pr)
+    # --- near-point pairs (robot geom vs a bounded obstacle) ---------------------------
+    def geom_pose(g):
+        b = model.geom_bodies[g]
+        return _sp.homogeneous(Rw[b], pw[b]) @ model.geom_poses[g]
+
+    for g, o in lay.near_pairs:
+        ob = env.obstacles[o]
+        d, pa, pb, n = signed_distance(model.geoms[g], geom_pose(g), ob.shape, ob.pose)
+        b = np.asarray([model.geom_bodies[g]])
+        ds.append(d[None]), p_rob.append(pa[None]), p_obs.append(pb[None]), ns.append(n[None])
+        vel.append(point_velocity(b, pa[None])), app.append(pa[None])
+    # --- self-collision pairs ------------------------------------------------------------
+    for a, bg in lay.self_pairs:
+        d, pa, pb, n = signed_distance(model.geoms[a], geom_pose(a), model.geoms[bg], geom_pose(bg))
+        mid = 0.5 * (pa + pb)[None]
+        ba, bb = np.asarray([model.geom_bodies[a]]), np.asarray([model.geom_bodies[bg]])
+        ds.append(d[None]), p_rob.append(pa[None]), p_obs.append(pb[None]), ns.append(n[None])
+        vel.append(point_velocity(ba, mid) - point_velocity(bb, mid)), app.append(mid)
+    d, pr, po, n, vv, ap = (jnp.concatenate(a) for a in (ds, p_rob, p_obs, ns, vel, app))
+
+    f, N_mag, f_t = point_contact_force(d, n, vv, P)
+    W = jnp.concatenate([jnp.cross(ap, f), f], axis=1)  # (k, 6) wrenches about the world origin
+    A = np.zeros((nb, k))
+    A[np.asarray(lay.body), np.arange(k)] = 1.0
+    oth = np.asarray(lay.other_body)
+    sel = np.nonzero(oth >= 0)[0]
+    A[oth[sel], sel] -= 1.0
+    f_ext = jnp.asarray(A, W.dtype) @ W
+    return ContactData(d=d, p_robot=pr, p_obstacle=po, n=n, velocity=vv, normal_magnitude=N_mag,
+                       normal_force=N_mag[:, None] * n, friction_force=f_t, f_ext=f_ext, body=lay.body,
+                       other_body=lay.other_body, labels=lay.labels)

@@ -241,7 +241,8 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
         scalar``; integrated into ``J``.
       params: pytree passed to ``cost_fn``.
       segment: steps per checkpointed segment (default ~sqrt(N)).
-      q_bound, v_bound: divergence bounds on the passive positions and velocities.
+      q_bound, v_bound: divergence bounds on the passive positions and velocities (may be
+        traced).
       record: if False, the trajectory arrays are not returned (``traj`` is None).
     Returns:
       dict with ``J`` (running-cost integral; inf if diverged), ``qT``, ``vT`` (final
@@ -256,10 +257,13 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
     N = int(n_steps)
     h = dt
     n_run = N if n_valid is None else n_valid
-    seg = int(segment) if segment else max(1, int(math.ceil(math.sqrt(N))))
-    seg = min(seg, N)
-    n_seg = int(math.ceil(N / seg))
-    pad = n_seg * seg - N
+    # N + 1 scan steps: the last one (and any padding) only evaluates the dynamics at the
+    # final state (its outputs are the trajectory's last point); the state stays frozen
+    NT = N + 1
+    seg = int(segment) if segment else max(1, int(math.ceil(math.sqrt(NT))))
+    seg = min(seg, NT)
+    n_seg = int(math.ceil(NT / seg))
+    pad = n_seg * seg - NT
     q0 = jnp.asarray(q0)
     v0 = jnp.asarray(v0)
     dtype = v0.dtype
@@ -273,9 +277,10 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
         return x.reshape((n_seg, seg) + x.shape[1:])
 
     qa, va, aa = paths["qa"], paths["va"], paths["aa"]
-    xs = dict(qa0=qa[:-1], va0=va[:-1], aa0=aa[:-1], qa1=qa[1:], va1=va[1:], aa1=aa[1:])
+    ext = lambda y: jnp.concatenate([y, y[-1:]], axis=0)
+    xs = dict(qa0=qa, va0=va, aa0=aa, qa1=ext(qa[1:]), va1=ext(va[1:]), aa1=ext(aa[1:]))
     if integrator == "rk4":
-        xs.update(qam=paths["qm"], vam=paths["vm"], aam=paths["am"])
+        xs.update(qam=ext(paths["qm"]), vam=ext(paths["vm"]), aam=ext(paths["am"]))
     xs = {k: padded(x) for k, x in xs.items()}
     xs["k"] = jnp.arange(n_seg * seg, dtype=jnp.int32).reshape(n_seg, seg)  # steps >= N are padding
 
@@ -285,29 +290,34 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
     def step(carry, x):
         q, v, J, bad, bstep, bdof, breason = carry
         t = x["k"] * h
-        q1_, v1_, a1, tau1, c1, L1 = stage(q, v, x["qa0"], x["va0"], x["aa0"], t)
         if integrator == "rk4":
-            K1, W1 = v1_[ivp], a1[ivp]
-            th = 0.5 * h * K1
-            q2 = _passive_exp(model, layout, q1_, th)
-            v2 = v1_.at[ivp].add(0.5 * h * W1)
-            q2, v2, a2, _, _, L2 = stage(q2, v2, x["qam"], x["vam"], x["aam"], t + 0.5 * h)
-            K2 = _dexpinv(model, layout, th, v2[ivp])
-            th = 0.5 * h * K2
-            q3 = _passive_exp(model, layout, q1_, th)
-            v3 = v1_.at[ivp].add(0.5 * h * a2[ivp])
-            q3, v3, a3, _, _, L3 = stage(q3, v3, x["qam"], x["vam"], x["aam"], t + 0.5 * h)
-            K3 = _dexpinv(model, layout, th, v3[ivp])
-            th = h * K3
-            q4 = _passive_exp(model, layout, q1_, th)
-            v4 = v1_.at[ivp].add(h * a3[ivp])
-            q4, v4, a4, _, _, L4 = stage(q4, v4, x["qa1"], x["va1"], x["aa1"], t + h)
-            K4 = _dexpinv(model, layout, th, v4[ivp])
-            theta = h / 6.0 * (K1 + 2 * K2 + 2 * K3 + K4)
-            qn = _passive_exp(model, layout, q1_, theta)
-            vn = v1_.at[ivp].add(h / 6.0 * (a1[ivp] + 2 * a2[ivp] + 2 * a3[ivp] + a4[ivp]))
-            Jn = J + h / 6.0 * (L1 + 2 * L2 + 2 * L3 + L4)
+            # the four RK4/RKMK4 stages as a scan, so the dynamics is traced once
+            P = jnp.stack([x["qa0"], x["qam"], x["qam"], x["qa1"]])
+            V = jnp.stack([x["va0"], x["vam"], x["vam"], x["va1"]])
+            A = jnp.stack([x["aa0"], x["aam"], x["aam"], x["aa1"]])
+            cs_ = jnp.array([0.0, 0.5, 0.5, 1.0], dtype)
+            bs_ = jnp.array([1.0, 2.0, 2.0, 1.0], dtype) / 6.0
+
+            def rk_stage(sc, z):
+                Kp, Wp, sK, sW, sL = sc
+                c, b, qa_, va_, aa_ = z
+                th = c * h * Kp
+                qi = _passive_exp(model, layout, q, th)
+                vi = v.at[ivp].add(c * h * Wp)
+                qi, vi, ai, taui, ci, Li = stage(qi, vi, qa_, va_, aa_, t + c * h)
+                Ki = _dexpinv(model, layout, th, vi[ivp])
+                Wi = ai[ivp]
+                return (Ki, Wi, sK + b * Ki, sW + b * Wi, sL + b * Li), (qi, vi, ai, taui, ci)
+
+            z0 = jnp.zeros(nvp, dtype)
+            sc0 = (z0, z0, z0, z0, jnp.zeros((), dtype))
+            (_, _, sK, sW, sL), ys = jax.lax.scan(rk_stage, sc0, (cs_, bs_, P, V, A))
+            q1_, v1_, a1, tau1, c1 = jax.tree_util.tree_map(lambda y: y[0], ys)
+            qn = _passive_exp(model, layout, q1_, h * sK)
+            vn = v1_.at[ivp].add(h * sW)
+            Jn = J + h * sL
         else:
+            q1_, v1_, a1, tau1, c1, L1 = stage(q, v, x["qa0"], x["va0"], x["aa0"], t)
             vn = v1_.at[ivp].add(h * a1[ivp])
             qn = _passive_exp(model, layout, q1_, h * vn[ivp])
             Jn = J + h * L1
@@ -347,21 +357,18 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
               jnp.asarray(-1, jnp.int32), jnp.asarray(0, jnp.int32))
     carry, ys = jax.lax.scan(run_segment, carry0, xs)
     qN, vN, J, bad, bstep, bdof, breason = carry
-    if n_valid is None:
-        qT, vT, aT, tauT, cT, _ = stage(qN, vN, qa[-1], va[-1], aa[-1], N * h)
-    else:
-        qT, vT, aT, tauT, cT, _ = stage(qN, vN, qa[n_valid], va[n_valid], aa[n_valid], n_valid * h)
-    out = dict(J=jnp.where(bad, jnp.inf, J), qT=qT, vT=vT, diverged=bad, div_step=bstep, div_dof=bdof,
-               div_reason=breason)
+    out = dict(J=jnp.where(bad, jnp.inf, J), diverged=bad, div_step=bstep, div_dof=bdof, div_reason=breason)
     if record:
-        def flat(y, last):
-            y = y.reshape((n_seg * seg,) + y.shape[2:])[:N]
-            return jnp.concatenate([y, last[None]], axis=0)
-
+        flat = lambda y: y.reshape((n_seg * seg,) + y.shape[2:])[:NT]
         qs, vs, as_, taus, cs_ = ys
-        traj = dict(q=flat(qs, qT), v=flat(vs, vT), a=flat(as_, aT), tau=flat(taus, tauT))
-        traj["contact"] = None if cs_ is None else jax.tree_util.tree_map(flat, cs_, cT)
+        traj = dict(q=flat(qs), v=flat(vs), a=flat(as_), tau=flat(taus))
+        traj["contact"] = None if cs_ is None else jax.tree_util.tree_map(flat, cs_)
         out["traj"] = traj
+        out["qT"], out["vT"] = traj["q"][n_run], traj["v"][n_run]
+    else:
+        ia, iva = np.array(layout.qa_idx, int), np.array(layout.va_idx, int)
+        out["qT"] = qN.at[ia].set(qa[n_run]) if len(ia) else qN
+        out["vT"] = vN.at[iva].set(va[n_run]) if len(iva) else vN
     return out
 
 
@@ -453,7 +460,8 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
         if integrator == "rk4":
             paths.update(qm=Bs["M0"] @ ctrl, vm=Bs["M1"] @ ctrl, am=Bs["M2"] @ ctrl)
     res = _simulate_jit(model, q0, v0, paths, params, jnp.asarray(h, q0.dtype), layout=layout, N=N, integrator=integrator,
-                        contact_fn=contact_fn, cost_fn=cost_fn, segment=segment, q_bound=q_bound, v_bound=v_bound)
+                        contact_fn=contact_fn, cost_fn=cost_fn, segment=segment, q_bound=jnp.asarray(float(q_bound)),
+                        v_bound=jnp.asarray(float(v_bound)))
     check_divergence(model, res, h, "simulate")
     tr = res["traj"]
     contact = None if tr["contact"] is None else jax.tree_util.tree_map(np.asarray, tr["contact"])
@@ -461,8 +469,7 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
                       tau=np.asarray(tr["tau"]), cost=float(res["J"]), contact=contact)
 
 
-@functools.partial(jax.jit, static_argnames=("layout", "N", "integrator", "contact_fn", "cost_fn", "segment",
-                                             "q_bound", "v_bound"))
+@functools.partial(jax.jit, static_argnames=("layout", "N", "integrator", "contact_fn", "cost_fn", "segment"))
 def _simulate_jit(model, q0, v0, paths, params, h, *, layout, N, integrator, contact_fn, cost_fn, segment, q_bound,
                   v_bound):
     return rollout(model, layout, q0, v0, paths, h, N, integrator=integrator, contact_fn=contact_fn,

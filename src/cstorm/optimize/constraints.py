@@ -1,0 +1,202 @@
+"""Constraint terms of a motion problem.
+
+Conventions: equality constraints are ``c(x) = 0``; inequality constraints ``c(x) >= 0``
+(scipy's convention). A term returns a 1-D array of values from either the final state
+(``end``: dict ``q, v, a, tau``) or the trajectory sampled on the problem's constraint
+grid (``samples``: dict ``t (S,)``, ``q (S, nq)``, ``v, a, tau (S, nv)``; the grid is
+every ``stride``-th integration step, ``S ~ n_path_samples`` points including both ends).
+Numbers given as strings name problem parameters.
+
+**Staged constraints.** Every term has a ``stage`` (int, default 0): `solve` can switch
+terms on in stages (terms with ``stage <= level`` are enforced at level ``level``),
+warm-starting each stage from the last. All terms are always evaluated (one compiled
+function per problem); switched-off ones are simply not passed to the solver.
+
+Ready-made: `JointLimits` (position and velocity limits from the model, sampled),
+`TorqueLimits` (motor torques, sampled), `TerminalState` (passive states or base pose at
+``t_final``, equality or bounds), `TerminalConstraint` and `PathConstraint` (user JAX
+callables).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+
+from ..errors import ProblemError
+from .costs import joint_error, resolve, _jsonable
+
+__all__ = ["Constraint", "JointLimits", "TorqueLimits", "TerminalState", "TerminalConstraint", "PathConstraint"]
+
+
+class Constraint:
+    """Base class. ``kind``: ``"eq"`` or ``"ineq"`` (``>= 0``). Subclasses implement
+    ``values(ctx, end, samples) -> (k,)`` and may override ``check(problem)``."""
+
+    kind = "eq"
+    stage = 0
+    name = None
+
+    def check(self, problem):
+        pass
+
+    def values(self, ctx, end, samples):
+        raise NotImplementedError
+
+    def label(self):
+        return self.name or type(self).__name__
+
+    def describe(self) -> dict:
+        return {"type": type(self).__name__, "kind": self.kind, "stage": self.stage}
+
+
+def _set_common(obj, kind, stage, name):
+    if kind not in ("eq", "ineq"):
+        raise ProblemError(f"{type(obj).__name__}: kind must be 'eq' or 'ineq', got {kind!r}")
+    obj.kind, obj.stage, obj.name = kind, int(stage), name
+
+
+class JointLimits(Constraint):
+    """Position limits ``q_lower <= q <= q_upper`` and velocity limits ``|v| <=
+    velocity_limit`` from the model (finite entries only) of 1-DoF ``joints`` (default:
+    all 1-DoF joints), sampled on the constraint grid. Inequalities."""
+
+    kind = "ineq"
+
+    def __init__(self, joints=None, position=True, velocity=True, stage=0, name=None):
+        self.joints, self.position, self.velocity = joints, position, velocity
+        _set_common(self, "ineq", stage, name)
+
+    def check(self, problem):
+        m = problem.model
+        names = self.joints if self.joints is not None else m.joint_names
+        if isinstance(names, str):
+            names = [names]
+        lo, hi = np.asarray(m.q_lower), np.asarray(m.q_upper)
+        vl = np.asarray(m.velocity_limit)
+        ql, qu, vi = [], [], []
+        for n in names:
+            if n not in m.joint_names:
+                raise ProblemError(f"JointLimits: no joint named {n!r}")
+            i = m.joint_names.index(n)
+            if m.joints[i].nq != 1:
+                if self.joints is not None:
+                    raise ProblemError(f"JointLimits: joint {n!r} is not 1-DoF")
+                continue
+            qs, vs = m.q_starts[i], m.v_starts[i]
+            if self.position and np.isfinite(lo[qs]):
+                ql.append(qs)
+            if self.position and np.isfinite(hi[qs]):
+                qu.append(qs)
+            if self.velocity and np.isfinite(vl[vs]):
+                vi.append(vs)
+        self._ql, self._qu, self._vi = (np.array(x, int) for x in (ql, qu, vi))
+        if not (len(ql) or len(qu) or len(vi)):
+            raise ProblemError("JointLimits: the model has no finite position or velocity limits on these joints")
+
+    def values(self, ctx, end, samples):
+        m = ctx.model
+        q, v = samples["q"], samples["v"]
+        parts = [(q[:, self._ql] - m.q_lower[self._ql]).ravel(), (m.q_upper[self._qu] - q[:, self._qu]).ravel(),
+                 (m.velocity_limit[self._vi] - v[:, self._vi]).ravel(),
+                 (m.velocity_limit[self._vi] + v[:, self._vi]).ravel()]
+        return jnp.concatenate(parts)
+
+    def describe(self):
+        return {"type": "JointLimits", "joints": self.joints, "stage": self.stage}
+
+
+class TorqueLimits(Constraint):
+    """``|tau_i| <= limit_i`` for the motor torques of the active joints (or the named
+    ``joints``), sampled on the constraint grid; ``limits``: scalar, (k,) or None (the
+    model's ``effort_limit``). Inequalities."""
+
+    kind = "ineq"
+
+    def __init__(self, limits=None, joints=None, stage=0, name=None):
+        self.limits, self.joints = limits, joints
+        _set_common(self, "ineq", stage, name)
+
+    def check(self, problem):
+        from .costs import _joint_dofs
+        self._idx = _joint_dofs(problem, self.joints, problem.layout.va_idx)
+        if self.limits is None:
+            lim = np.asarray(problem.model.effort_limit)[self._idx]
+            if not np.all(np.isfinite(lim)):
+                raise ProblemError("TorqueLimits: the model's effort_limit is infinite for some of these joints; "
+                                   "pass limits=")
+
+    def values(self, ctx, end, samples):
+        lim = ctx.model.effort_limit[self._idx] if self.limits is None else \
+            jnp.broadcast_to(resolve(self.limits, ctx.params), (len(self._idx),))
+        tau = samples["tau"][:, self._idx]
+        return jnp.concatenate([(lim - tau).ravel(), (lim + tau).ravel()])
+
+    def describe(self):
+        return {"type": "TorqueLimits", "limits": _jsonable(self.limits), "joints": self.joints, "stage": self.stage}
+
+
+class TerminalState(Constraint):
+    """Final state of joint ``joint``: position ``q`` (a free joint's (7,) pose, error on
+    the manifold) and/or velocity ``v``. ``kind="eq"`` (default): ``q(T) = q``, ``v(T) =
+    v``. ``kind="ineq"`` with ``tol``: ``|error| <= tol`` componentwise. ``which``
+    selects the parts (``"q"``, ``"v"`` or ``"qv"``; default: those given). Values may
+    name problem parameters."""
+
+    def __init__(self, joint, q=None, v=None, kind="eq", tol=0.0, stage=0, name=None):
+        self.joint, self.q, self.v, self.tol = joint, q, v, tol
+        _set_common(self, kind, stage, name)
+
+    def check(self, problem):
+        if self.joint not in problem.model.joint_names:
+            raise ProblemError(f"TerminalState: no joint named {self.joint!r}; joints are "
+                               f"{list(problem.model.joint_names)}")
+        if self.q is None and self.v is None:
+            raise ProblemError(f"TerminalState({self.joint!r}): give q and/or v")
+
+    def values(self, ctx, end, samples):
+        m = ctx.model
+        errs = []
+        if self.q is not None:
+            errs.append(joint_error(m, self.joint, end["q"][m.joint_q(self.joint)],
+                                    resolve(self.q, ctx.params).reshape(-1)))
+        if self.v is not None:
+            errs.append(end["v"][m.joint_v(self.joint)] - resolve(self.v, ctx.params).reshape(-1))
+        e = jnp.concatenate(errs)
+        if self.kind == "eq":
+            return e
+        tol = resolve(self.tol, ctx.params)
+        return jnp.concatenate([tol - e, tol + e])
+
+    def label(self):
+        return self.name or f"TerminalState({self.joint})"
+
+    def describe(self):
+        return {"type": "TerminalState", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
+                "kind": self.kind, "stage": self.stage}
+
+
+class TerminalConstraint(Constraint):
+    """User terminal constraint ``fn(q, v, params) -> (k,)`` at ``t_final`` (``= 0`` for
+    ``kind="eq"``, ``>= 0`` for ``"ineq"``)."""
+
+    def __init__(self, fn, kind="eq", stage=0, name=None):
+        self.fn = fn
+        _set_common(self, kind, stage, name)
+
+    def values(self, ctx, end, samples):
+        return jnp.atleast_1d(self.fn(end["q"], end["v"], ctx.params)).ravel()
+
+
+class PathConstraint(Constraint):
+    """User path constraint ``fn(t, q, v, a, tau, params) -> (k,)`` evaluated (vmapped) at
+    every sample of the constraint grid (``>= 0`` by default; ``kind="eq"`` for ``= 0``)."""
+
+    def __init__(self, fn, kind="ineq", stage=0, name=None):
+        self.fn = fn
+        _set_common(self, kind, stage, name)
+
+    def values(self, ctx, end, samples):
+        f = lambda t, q, v, a, tau: jnp.atleast_1d(self.fn(t, q, v, a, tau, ctx.params))
+        return jax.vmap(f)(samples["t"], samples["q"], samples["v"], samples["a"], samples["tau"]).ravel()

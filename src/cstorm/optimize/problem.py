@@ -1,0 +1,443 @@
+"""One motion segment as a static parameter optimization (DESIGN.md, "The method", item
+5; the draft's "Generating Motions"): single shooting with quintic B-spline paths for
+the active joints.
+
+Decision vector ``x``: the free control points of the active joints' splines (those not
+fixed by the boundary conditions), joint by joint in model order (``problem.active``):
+``x = free.T.ravel()`` with ``free`` of shape ``(n_free, n_active)``; units of the joints
+(rad or m). Boundary conditions hold by construction: the start position and velocity
+of every active joint equal ``q0``/``v0``; optional end position, velocity and
+acceleration (``q_final_active``, ``v_final_active``, ``rest_end``).
+
+Objective ``f(x) = sum of terminal costs + integral of running costs`` (see `costs`);
+equality constraints ``c_eq(x) = 0``, inequalities ``c_in(x) >= 0`` (see
+`constraints`). Everything the compiled functions read that is a number — the model's
+arrays, ``q0``, ``v0``, the end values and the problem parameters — is a dynamic
+argument (``problem.data(...)``), so continuation, sequences and design studies reuse
+one compiled function.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+
+from ..errors import ProblemError
+from ..simulate import RolloutLayout, active_paths, rollout, time_grid, INTEGRATORS
+from ..trajectory import QuinticBSpline
+from . import costs as _costs
+from . import constraints as _cons
+
+__all__ = ["MotionProblem", "EvalContext", "require_x64"]
+
+
+def require_x64(who: str):
+    """Raise `ProblemError` unless JAX runs in float64."""
+    if not jax.config.jax_enable_x64:
+        raise ProblemError(
+            f"{who} needs float64, but JAX is running in float32. Turn float64 on before creating arrays: "
+            "`jax.config.update('jax_enable_x64', True)` at the top of your program, or set the environment "
+            "variable JAX_ENABLE_X64=1 (the cstorm CLI and the test suite do this)."
+        )
+
+
+class EvalContext:
+    """What cost and constraint terms see during an evaluation: ``model`` (possibly
+    traced), ``layout`` (static `RolloutLayout`), ``params`` (dict of problem parameters,
+    JAX arrays), ``problem`` (the `MotionProblem`)."""
+
+    def __init__(self, problem, model, params):
+        self.problem, self.model, self.layout, self.params = problem, model, problem.layout, params
+
+
+def _as_active_vector(value, names_given, layout, what):
+    """dict name->value or sequence (in the order the user listed the active joints) ->
+    numpy (n_active,) in layout (model) order."""
+    if isinstance(value, dict):
+        bad = set(value) - set(layout.active_names)
+        if bad:
+            raise ProblemError(f"{what}: {sorted(bad)} are not active joints ({list(layout.active_names)})")
+        missing = [n for n in layout.active_names if n not in value]
+        if missing:
+            raise ProblemError(f"{what}: missing values for active joints {missing}")
+        return np.array([float(value[n]) for n in layout.active_names])
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.shape != (len(names_given),):
+        raise ProblemError(f"{what}: expected {len(names_given)} values (one per active joint), got shape {arr.shape}")
+    return np.array([arr[names_given.index(n)] for n in layout.active_names])
+
+
+class MotionProblem:
+    """One motion segment.
+
+    Args:
+      model: the robot `Model`.
+      active: names of the active joints (1-DoF; their paths are the decision variables).
+        All other DoFs are passive (zero torque plus springs/dampers/limits and contact).
+      t_final: duration (s). n_ctrl: control points per active joint (>= 6).
+      dt: integration step (s); ``N = round(t_final / dt)``.
+      q0: (nq,) initial configuration. v0: (nv,) initial velocity (default zeros).
+      env, contact: optional environment and `ContactParams` (see `cstorm.contact`); with
+        them the rollout adds contact wrenches and records per-point contact data.
+        ``contact_fn`` (alternative): a JAX callable ``(model, q, v) -> (f_ext (n_bodies,
+        6), data)``.
+      q_final_active: optional end positions of the active joints (dict name->value or a
+        sequence in the order of ``active``), imposed by construction.
+      v_final_active: optional end velocities (likewise). rest_end: end at rest
+        (``v = a = 0``) for the active joints. rest_start: zero initial acceleration of the
+        active joints (their initial velocity must then be 0 in ``v0``).
+      costs: list of `costs.Cost` terms (default ``[TorqueSquared()]``).
+      constraints: list of `constraints.Constraint` terms.
+      params: dict of named problem parameters (floats or arrays) that terms refer to by
+        name; continuation ramps them.
+      integrator: ``"rk4"`` (default) or ``"euler"``.
+      n_path_samples: about how many grid points path constraints are sampled at.
+      initial_guess: None (active joints interpolate linearly from start to end value),
+        an array ``x0``, or a dict ``name -> (t, values)`` of samples fitted by least
+        squares (other joints: linear).
+      jacobian: ``"auto"`` (forward mode when there are fewer variables than outputs),
+        ``"fwd"`` or ``"rev"``.
+      segment: steps per checkpointed scan segment (default ~sqrt(N)).
+      q_bound, v_bound: divergence bounds of the rollout.
+      name: a label for displays and files.
+
+    Attributes: ``model, layout, spline, n_steps, dt, t (grid), n_vars, n_eq, n_ineq,
+    x0, solve_options`` (defaults merged into `solve`'s options, e.g. a continuation
+    schedule shipped with an example).
+    """
+
+    def __init__(self, model, active, t_final, n_ctrl, dt, q0, v0=None, *, env=None, contact=None, contact_fn=None,
+                 q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
+                 constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
+                 jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion"):
+        require_x64("MotionProblem")
+        self.model = model
+        self.name = str(name)
+        names_given = tuple([active] if isinstance(active, str) else active)
+        if not names_given:
+            raise ProblemError("MotionProblem: at least one active joint is needed (the decision variables are "
+                               "the active joints' spline control points)")
+        self.layout = RolloutLayout.make(model, names_given)
+        self.active = self.layout.active_names
+        self._names_given = names_given
+        if integrator not in INTEGRATORS:
+            raise ProblemError(f"MotionProblem: integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        self.integrator = integrator
+        self.t_final = float(t_final)
+        self.spline = QuinticBSpline(int(n_ctrl), self.t_final)
+        self.n_steps, self.dt, self.t = time_grid(self.t_final, dt)
+        self.q0 = np.asarray(q0, dtype=float).reshape(-1)
+        if self.q0.shape != (model.nq,):
+            raise ProblemError(f"MotionProblem: q0 must have shape ({model.nq},), got {self.q0.shape}")
+        self.v0 = np.zeros(model.nv) if v0 is None else np.asarray(v0, dtype=float).reshape(-1)
+        if self.v0.shape != (model.nv,):
+            raise ProblemError(f"MotionProblem: v0 must have shape ({model.nv},), got {self.v0.shape}")
+        if not (np.all(np.isfinite(self.q0)) and np.all(np.isfinite(self.v0))):
+            raise ProblemError("MotionProblem: q0 and v0 must be finite")
+        self.qa_final = None if q_final_active is None else _as_active_vector(
+            q_final_active, names_given, self.layout, "q_final_active")
+        self.va_final = None if v_final_active is None else _as_active_vector(
+            v_final_active, names_given, self.layout, "v_final_active")
+        if rest_end and self.va_final is not None:
+            raise ProblemError("MotionProblem: rest_end=True already sets the final active velocities to 0")
+        self.rest_end, self.rest_start = bool(rest_end), bool(rest_start)
+        if self.rest_start and np.any(self.v0[list(self.layout.va_idx)] != 0):
+            raise ProblemError("MotionProblem: rest_start=True needs zero initial velocity of the active joints")
+        self.params = {k: np.asarray(v, dtype=float) for k, v in (params or {}).items()}
+        self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
+        self.constraints = list(constraints or [])
+        for c in self.costs:
+            if not isinstance(c, _costs.Cost):
+                raise ProblemError(f"MotionProblem: costs must be cost terms (cstorm.optimize.costs), got {c!r}")
+            c.check(self)
+        for c in self.constraints:
+            if not isinstance(c, _cons.Constraint):
+                raise ProblemError(
+                    f"MotionProblem: constraints must be constraint terms (cstorm.optimize.constraints), got {c!r}")
+            c.check(self)
+        if jacobian not in ("auto", "fwd", "rev"):
+            raise ProblemError(f"MotionProblem: jacobian must be 'auto', 'fwd' or 'rev', got {jacobian!r}")
+        self.jacobian_mode = jacobian
+        self.segment = segment
+        self.q_bound, self.v_bound = float(q_bound), float(v_bound)
+        self.env, self.contact = env, contact
+        self._contact_fn = self._make_contact_fn(env, contact, contact_fn)
+        # constraint grid: every `stride`-th step, both ends included
+        stride = max(1, self.n_steps // max(1, int(n_path_samples)))
+        idx = np.arange(0, self.n_steps + 1, stride)
+        if idx[-1] != self.n_steps:
+            idx = np.append(idx, self.n_steps)
+        self.sample_idx = idx
+        # boundary conditions (static pattern) and sizes
+        self._bc_pattern = dict(q0=True, v0=True, a0=self.rest_start, q1=self.qa_final is not None,
+                                v1=self.va_final is not None or self.rest_end, a1=self.rest_end)
+        key = {k: 0.0 for k, on in self._bc_pattern.items() if on}
+        self.n_free = self.spline.n_free(**key)
+        if self.n_free < 1:
+            raise ProblemError(f"MotionProblem: n_ctrl={n_ctrl} leaves no free control points after the boundary "
+                               "conditions; increase n_ctrl")
+        self.n_vars = self.n_free * self.layout.n_active
+        self._basis = {k: jnp.asarray(v) for k, v in active_paths(self.spline, self.n_steps, integrator).items()}
+        self.solve_options = {}
+        self._compiled = {}
+        self._term_slices = self._slices()
+        self.n_eq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "eq")
+        self.n_ineq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "ineq")
+        self.x0 = self._initial_guess(initial_guess)
+
+    # ------------------------------------------------------------------ data and contact
+    def _make_contact_fn(self, env, contact, contact_fn):
+        if contact_fn is not None:
+            return contact_fn
+        if env is None:
+            return None
+        from .. import contact as _contact
+        if not hasattr(_contact, "contact_forces"):
+            raise ProblemError("MotionProblem: this cstorm build has no contact_forces; pass contact_fn=")
+        if contact is None:
+            raise ProblemError("MotionProblem: env given without contact parameters (contact=cs.ContactParams(...))")
+
+        def fn(model, q, v):
+            out = _contact.contact_forces(model, env, contact, q, v)
+            if isinstance(out, tuple) and len(out) == 2:
+                data, f_ext = out
+                if getattr(data, "shape", None) == (model.n_bodies, 6):
+                    data, f_ext = f_ext, data
+                return f_ext, data
+            f_ext = getattr(out, "f_ext")
+            return f_ext, out
+        return fn
+
+    def data(self, params=None, q0=None, v0=None, model=None):
+        """The dynamic inputs of the compiled functions (a pytree): the model, start
+        state, active end values and problem parameters (``params`` overrides
+        entries)."""
+        p = dict(self.params)
+        for k, v in (params or {}).items():
+            if k not in p:
+                raise ProblemError(f"{self.name}: unknown problem parameter {k!r}; parameters are {sorted(p)}")
+            p[k] = np.asarray(v, dtype=float)
+        d = dict(model=self.model if model is None else model,
+                 q0=jnp.asarray(self.q0 if q0 is None else q0, dtype=jnp.float64),
+                 v0=jnp.asarray(self.v0 if v0 is None else v0, dtype=jnp.float64),
+                 params={k: jnp.asarray(v) for k, v in p.items()}, basis=self._basis)
+        if self.qa_final is not None:
+            d["qa_final"] = jnp.asarray(self.qa_final)
+        if self.va_final is not None:
+            d["va_final"] = jnp.asarray(self.va_final)
+        return d
+
+    # ------------------------------------------------------------------ evaluation
+    def ctrl(self, x, data):
+        """Control points (n_ctrl, n_active) of the active paths (layout order)."""
+        na = self.layout.n_active
+        free = jnp.reshape(x, (na, self.n_free)).T
+        ia, iv = np.array(self.layout.qa_idx, int), np.array(self.layout.va_idx, int)
+        bc = dict(q0=data["q0"][ia], v0=data["v0"][iv])
+        if self.rest_start:
+            bc["a0"] = jnp.zeros(na)
+        if self.qa_final is not None:
+            bc["q1"] = data["qa_final"]
+        if self.rest_end:
+            bc["rest_end"] = True
+        elif self.va_final is not None:
+            bc["v1"] = data["va_final"]
+        return self.spline.expand(free, **bc)
+
+    def _rollout(self, x, data, record=True):
+        model = data["model"]
+        ctrl = self.ctrl(x, data)
+        B = data["basis"]
+        paths = dict(qa=B["B0"] @ ctrl, va=B["B1"] @ ctrl, aa=B["B2"] @ ctrl)
+        if self.integrator == "rk4":
+            paths.update(qm=B["M0"] @ ctrl, vm=B["M1"] @ ctrl, am=B["M2"] @ ctrl)
+        ctx = EvalContext(self, model, data["params"])
+        running = [c for c in self.costs if type(c).running is not _costs.Cost.running]
+
+        def cost_fn(t, q, v, a, tau, contact, params):
+            out = jnp.zeros((), q.dtype)
+            for c in running:
+                r = c.running(ctx, t, q, v, a, tau, contact)
+                if r is not None:
+                    out = out + r
+            return out
+
+        cfn = None
+        if self._contact_fn is not None:
+            cfn = lambda q, v: self._contact_fn(model, q, v)
+        res = rollout(model, self.layout, data["q0"], data["v0"], paths, self.dt, self.n_steps,
+                      integrator=self.integrator, contact_fn=cfn, cost_fn=cost_fn if running else None,
+                      params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,
+                      record=record)
+        return res, ctx
+
+    def evaluate(self, x, data):
+        """Pure JAX: dict ``f`` (scalar objective), ``c_eq`` (n_eq,), ``c_in`` (n_ineq,),
+        ``diverged`` (bool) at decision vector ``x`` (n_vars,)."""
+        res, ctx = self._rollout(x, data, record=True)
+        tr = res["traj"]
+        end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
+        f = res["J"]
+        for c in self.costs:
+            if type(c).terminal is not _costs.Cost.terminal:
+                val = c.terminal(ctx, end)
+                if val is not None:
+                    f = f + val
+        idx = self.sample_idx
+        samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
+                       tau=tr["tau"][idx])
+        if tr.get("contact") is not None:
+            samples["contact"] = jax.tree_util.tree_map(lambda y: y[idx], tr["contact"])
+        eq, inq = [], []
+        for c in self.constraints:
+            val = jnp.atleast_1d(c.values(ctx, end, samples)).ravel()
+            (eq if c.kind == "eq" else inq).append(val)
+        z = jnp.zeros(0, f.dtype)
+        return dict(f=f, c_eq=jnp.concatenate(eq) if eq else z, c_in=jnp.concatenate(inq) if inq else z,
+                    diverged=res["diverged"])
+
+    def trajectory(self, x, data):
+        """Pure JAX: the full rollout at ``x``: dict ``t, q, v, a, tau, contact`` on the
+        grid plus ``J`` and the divergence record (see `cstorm.simulate.rollout`)."""
+        res, _ = self._rollout(x, data, record=True)
+        out = dict(res["traj"])
+        out.update({k: res[k] for k in ("J", "diverged", "div_step", "div_dof", "div_reason")})
+        out["ctrl"] = self.ctrl(x, data)
+        return out
+
+    def _slices(self):
+        """Per constraint term: (kind, slice into c_eq or c_in, stage, label)."""
+        out = []
+        d = self.data()
+        n = {"eq": 0, "ineq": 0}
+        sizes = jax.eval_shape(lambda x, dd: self._term_sizes(x, dd), jnp.zeros(self.n_vars), d)
+        for c, s in zip(self.constraints, sizes):
+            k = s.shape[0]
+            out.append((c.kind, slice(n[c.kind], n[c.kind] + k), c.stage, c.label()))
+            n[c.kind] += k
+        return out
+
+    def _term_sizes(self, x, data):
+        res, ctx = self._rollout(x, data, record=True)
+        tr = res["traj"]
+        end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
+        idx = self.sample_idx
+        samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
+                       tau=tr["tau"][idx])
+        return [jnp.atleast_1d(c.values(ctx, end, samples)).ravel() for c in self.constraints]
+
+    def constraint_masks(self, level=None):
+        """Boolean masks over ``c_eq`` and ``c_in``: the constraints enforced at stage
+        ``level`` (terms with ``stage <= level``; None: all)."""
+        me, mi = np.zeros(self.n_eq, bool), np.zeros(self.n_ineq, bool)
+        for kind, sl, stage, _ in self._term_slices:
+            if level is None or stage <= level:
+                (me if kind == "eq" else mi)[sl] = True
+        return me, mi
+
+    @property
+    def n_levels(self) -> int:
+        """Number of constraint stages (1 + the largest ``stage`` of any term)."""
+        return 1 + max([c.stage for c in self.constraints], default=0)
+
+    # ------------------------------------------------------------------ compiled functions
+    def compiled(self, which="fun_jac"):
+        """Jitted functions of ``(x, data)`` (compiled on first use, once per problem):
+        ``"fun_jac"`` -> (f, c_eq, c_in, diverged, grad f, J_eq, J_in); ``"fun"`` -> (f,
+        c_eq, c_in, diverged); ``"trajectory"`` -> `trajectory`."""
+        if which not in self._compiled:
+            if which == "fun_jac":
+                self._compiled[which] = jax.jit(self._fun_jac)
+            elif which == "fun":
+                self._compiled[which] = jax.jit(
+                    lambda x, d: (lambda r: (r["f"], r["c_eq"], r["c_in"], r["diverged"]))(self.evaluate(x, d)))
+            elif which == "trajectory":
+                self._compiled[which] = jax.jit(self.trajectory)
+            else:
+                raise ValueError(which)
+        return self._compiled[which]
+
+    def _fun_jac(self, x, data):
+        def y(xx):
+            r = self.evaluate(xx, data)
+            return jnp.concatenate([r["f"][None], r["c_eq"], r["c_in"]]), r["diverged"]
+
+        m = 1 + self.n_eq + self.n_ineq
+        n = self.n_vars
+        mode = self.jacobian_mode
+        if mode == "auto":
+            # forward mode: one batched pass of n tangents; reverse: m cotangents, each a
+            # recomputing backward pass through the checkpointed scan (several times dearer)
+            mode = "fwd" if n <= max(64, 4 * m) else "rev"
+        if mode == "fwd":
+            val, div = y(x)
+            jvp = lambda t: jax.jvp(lambda xx: y(xx)[0], (x,), (t,))[1]
+            Jt = jax.vmap(jvp)(jnp.eye(n, dtype=x.dtype))  # (n, m)
+            J = Jt.T
+        else:
+            val, vjp, div = jax.vjp(y, x, has_aux=True)
+            J = jax.vmap(lambda ct: vjp(ct)[0])(jnp.eye(m, dtype=x.dtype))  # (m, n)
+        ne = self.n_eq
+        return (val[0], val[1:1 + ne], val[1 + ne:], div, J[0], J[1:1 + ne], J[1 + ne:])
+
+    # ------------------------------------------------------------------ initial guess
+    def _initial_guess(self, guess):
+        na, nf = self.layout.n_active, self.n_free
+        if guess is not None and not isinstance(guess, dict):
+            x = np.asarray(guess, dtype=float).reshape(-1)
+            if x.shape != (self.n_vars,):
+                raise ProblemError(f"{self.name}: initial_guess must have shape ({self.n_vars},), got {x.shape}")
+            return x
+        guess = guess or {}
+        bad = set(guess) - set(self.active)
+        if bad:
+            raise ProblemError(f"{self.name}: initial_guess names non-active joints {sorted(bad)}")
+        qa0 = self.q0[list(self.layout.qa_idx)]
+        va0 = self.v0[list(self.layout.va_idx)]
+        qa1 = self.qa_final if self.qa_final is not None else qa0
+        cols = []
+        for k, nme in enumerate(self.active):
+            bc = dict(q0=qa0[k], v0=va0[k])
+            if self.rest_start:
+                bc["a0"] = 0.0
+            if self.qa_final is not None:
+                bc["q1"] = self.qa_final[k]
+            if self.rest_end:
+                bc["rest_end"] = True
+            elif self.va_final is not None:
+                bc["v1"] = self.va_final[k]
+            if nme in guess:
+                ts, vals = guess[nme]
+            else:
+                ts = np.linspace(0, self.t_final, 2 * self.spline.n_ctrl)
+                vals = qa0[k] + (qa1[k] - qa0[k]) * ts / self.t_final
+            ctrl = self.spline.fit(np.asarray(ts, float), np.asarray(vals, float), **bc)
+            cols.append(np.asarray(self.spline.reduce(ctrl, **{k2: v for k2, v in bc.items()})))
+        return np.stack(cols, axis=1).T.reshape(-1) if na else np.zeros(0)
+
+    # ------------------------------------------------------------------ description
+    def describe(self) -> dict:
+        """JSON-able description (for provenance and hashing)."""
+        return dict(name=self.name, model=self.model.name, active=list(self.active), t_final=self.t_final,
+                    n_ctrl=self.spline.n_ctrl, dt=self.dt, n_steps=self.n_steps, integrator=self.integrator,
+                    q0=self.q0.tolist(), v0=self.v0.tolist(),
+                    q_final_active=None if self.qa_final is None else self.qa_final.tolist(),
+                    v_final_active=None if self.va_final is None else self.va_final.tolist(),
+                    rest_end=self.rest_end, rest_start=self.rest_start,
+                    params={k: np.asarray(v).tolist() for k, v in self.params.items()},
+                    costs=[c.describe() for c in self.costs], constraints=[c.describe() for c in self.constraints],
+                    n_vars=self.n_vars, n_eq=self.n_eq, n_ineq=self.n_ineq)
+
+    def hash(self) -> str:
+        """A short hash of `describe()` (which problem a checkpoint or solution is for)."""
+        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    def __repr__(self):
+        return (f"MotionProblem({self.name!r}, model={self.model.name!r}, active={list(self.active)}, "
+                f"t_final={self.t_final}, n_ctrl={self.spline.n_ctrl}, dt={self.dt:g}, n_vars={self.n_vars}, "
+                f"n_eq={self.n_eq}, n_ineq={self.n_ineq})")

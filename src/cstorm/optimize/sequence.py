@@ -1,0 +1,86 @@
+"""A sequence of motion segments solved in order, each starting where the previous one
+ended (the draft's tumbler: standing -> handstand -> roll -> standing).
+
+Segment ``k > 0`` starts from the final configuration and velocity of segment ``k - 1``'s
+solution (its own ``q0``/``v0`` are ignored; its active joints' splines start there by
+construction). Segments are separate problems with their own costs, constraints, time
+step and solve options (continuation, staging).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ProblemError
+from .problem import MotionProblem
+from .solution import Solution
+
+__all__ = ["MotionSequence"]
+
+
+class MotionSequence:
+    """``MotionSequence(segments)``: a list of `MotionProblem` on the same model (the same
+    joints, ``nq``, ``nv``). ``name`` labels displays and files."""
+
+    def __init__(self, segments, name="sequence"):
+        segments = list(segments)
+        if not segments:
+            raise ProblemError("MotionSequence: give at least one segment")
+        for k, s in enumerate(segments):
+            if not isinstance(s, MotionProblem):
+                raise ProblemError(f"MotionSequence: segment {k} is a {type(s).__name__}, not a MotionProblem")
+            if s.model.joint_names != segments[0].model.joint_names:
+                raise ProblemError(f"MotionSequence: segment {k} uses a different model (joints "
+                                   f"{list(s.model.joint_names)} vs {list(segments[0].model.joint_names)})")
+        self.segments = segments
+        self.name = str(name)
+        self.solve_options = {}
+
+    def __len__(self):
+        return len(self.segments)
+
+    def __repr__(self):
+        return f"MotionSequence({self.name!r}, {len(self.segments)} segments)"
+
+    def _solve(self, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose, callback,
+               checkpoint, options, out, objective_scale="auto"):
+        from .solve import _solve_problem
+        sols = []
+        q0 = v0 = None
+        for k, seg in enumerate(self.segments):
+            ck = None if checkpoint is None else f"{checkpoint}.seg{k}.npz"
+            s = _solve_problem(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+                               tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
+                               checkpoint=ck, options=options, out=out, q0=q0, v0=v0,
+                               objective_scale=objective_scale)
+            s.segments = []
+            sols.append(s)
+            q0, v0 = s.trajectory["q"][-1], s.trajectory["v"][-1]
+            if "interrupted" in s.message:
+                break
+        # concatenated trajectory (the first point of later segments is the previous end)
+        keys = ("q", "v", "a", "tau")
+        traj = {k: [sols[0].trajectory[k]] for k in keys}
+        ts = [sols[0].trajectory["t"]]
+        off = sols[0].trajectory["t"][-1]
+        for s in sols[1:]:
+            for k in keys:
+                traj[k].append(s.trajectory[k][1:])
+            ts.append(s.trajectory["t"][1:] + off)
+            off += s.trajectory["t"][-1]
+        trajectory = {k: np.concatenate(v) for k, v in traj.items()}
+        trajectory["t"] = np.concatenate(ts)
+        done = len(sols) == len(self.segments)
+        success = done and all(s.success for s in sols)
+        bad = [k for k, s in enumerate(sols) if not s.success]
+        message = "all segments solved" if success else (
+            f"segment(s) {bad} failed: " + "; ".join(sols[k].message for k in bad) if bad else
+            f"stopped after {len(sols)} of {len(self.segments)} segments")
+        return Solution(success=success, message=message, cost=float(sum(s.cost for s in sols)),
+                        constraint_violation=float(max(s.constraint_violation for s in sols)),
+                        iterations=int(sum(s.iterations for s in sols)), x=np.concatenate([s.x for s in sols]),
+                        trajectory=trajectory, history=[h for s in sols for h in s.history], segments=sols,
+                        problem=self.name, wall_time_s=float(sum(s.wall_time_s for s in sols)),
+                        compile_time_s=float(sum(s.compile_time_s for s in sols)),
+                        n_evaluations=int(sum(s.n_evaluations for s in sols)),
+                        info=dict(segments=[s.problem for s in sols]))

@@ -1,0 +1,395 @@
+"""The solver front end: `solve(problem_or_sequence, method="slsqp" | "ipopt", ...)`.
+
+Exact JAX gradients and constraint Jacobians (one compiled function per problem that
+returns values and derivatives together; continuation and staging change only its
+dynamic inputs). SLSQP is scipy's (the draft's BFGS SQP); IPOPT goes through casadi
+(optional extra ``cstorm[ipopt]``) with a limited-memory Hessian and the same exact
+first derivatives.
+
+Stages. A solve runs a plan of stages, each warm-started from the previous one:
+``continuation={"name": [v1, v2, ...]}`` ramps problem parameters (all lists the same
+length); then staged constraints (terms with ``stage=1, 2, ...``) are switched on one
+level at a time at the final parameter values. During the continuation stages the
+constraints of level 0 are enforced. ``schedule=[{"params": {...}, "level": k}, ...]``
+gives the plan explicitly. With neither, one stage with every constraint.
+
+Robustness. A trial point whose rollout diverges is returned to the solver as a very
+bad point (a huge objective and finite constraint values), so the line search backs
+off. Ctrl-C (KeyboardInterrupt, also raised from ``callback``) stops the solve and
+returns the best iterate so far (feasible with the lowest cost, else the least
+infeasible) with ``success=False``. ``checkpoint=path`` writes the current iterate and
+stage atomically after every iteration; ``resume=path`` continues from such a file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+
+from ..errors import DivergenceError, InputError, ProblemError
+from ..simulate import check_divergence
+from .problem import MotionProblem, require_x64
+from .solution import Solution, atomic_savez
+
+__all__ = ["solve", "SolveOptions"]
+
+_BIG = 1e12
+
+
+class _Interrupted(Exception):
+    pass
+
+
+class _Evaluator:
+    """Caches the compiled values+derivatives of one problem at the last x."""
+
+    def __init__(self, problem: MotionProblem, data, mask_eq, mask_in):
+        self.p, self.data = problem, data
+        self.me, self.mi = mask_eq, mask_in
+        self.fscale = 1.0  # the solver sees fscale * f (reported costs are unscaled)
+        self.fn = problem.compiled("fun_jac")
+        self.x = None
+        self.nev = 0
+        self.f_good = None
+
+    def at(self, x):
+        x = np.asarray(x, dtype=float)
+        if self.x is None or not np.array_equal(x, self.x):
+            f, ce, ci, div, g, Je, Ji = (np.asarray(a) for a in self.fn(jnp.asarray(x), self.data))
+            self.nev += 1
+            self.x = x.copy()
+            ce, ci = ce[self.me], ci[self.mi]
+            Je, Ji = Je[self.me], Ji[self.mi]
+            bad = bool(div) or not (np.isfinite(f) and np.all(np.isfinite(ce)) and np.all(np.isfinite(ci)))
+            if bad:
+                ref = abs(self.f_good) if self.f_good is not None else 1.0
+                f = _BIG * (1.0 + ref)
+                ce = np.where(np.isfinite(ce), ce, _BIG)
+                ci = np.where(np.isfinite(ci), ci, -_BIG)
+                g = np.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
+                Je = np.nan_to_num(Je, nan=0.0, posinf=0.0, neginf=0.0)
+                Ji = np.nan_to_num(Ji, nan=0.0, posinf=0.0, neginf=0.0)
+            else:
+                self.f_good = float(f)
+            self.vals = (float(f), ce, ci, bad, g, Je, Ji)
+        return self.vals
+
+    def violation(self, x):
+        f, ce, ci, bad, *_ = self.at(x)
+        v = 0.0
+        if ce.size:
+            v = max(v, float(np.max(np.abs(ce))))
+        if ci.size:
+            v = max(v, float(np.max(np.maximum(0.0, -ci))))
+        return math.inf if bad else v
+
+
+class _Tracker:
+    """Per-iteration bookkeeping: history, best iterate, display, checkpoint, user
+    callback."""
+
+    def __init__(self, problem, verbose, callback, checkpoint, t0, tol, iteration0=0, out=None):
+        self.p, self.verbose, self.callback, self.checkpoint = problem, verbose, callback, checkpoint
+        self.t0, self.tol = t0, tol
+        self.history = []
+        self.iteration = iteration0
+        self.best = None  # (x, cost, violation, stage)
+        self.prev_x = None
+        self.out = out or sys.stdout
+
+    def header(self):
+        if self.verbose:
+            print(f"{'iter':>5} {'stage':>5} {'cost':>14} {'violation':>10} {'step':>10} {'time/s':>8}", file=self.out)
+
+    def consider(self, x, cost, viol, stage):
+        x = np.array(x, dtype=float)
+        if not np.isfinite(cost):
+            return
+        b = self.best
+        better = (b is None or (viol <= self.tol and (b[2] > self.tol or cost < b[1]))
+                  or (viol > self.tol and b[2] > self.tol and viol < b[2]))
+        if better:
+            self.best = (x, cost, viol, stage)
+
+    def record(self, x, ev, stage, stage_params):
+        f, *_ = ev.at(x)
+        viol = ev.violation(x)
+        self.iteration += 1
+        step = float(np.max(np.abs(x - self.prev_x))) if self.prev_x is not None else 0.0
+        self.prev_x = np.array(x, dtype=float)
+        el = time.perf_counter() - self.t0
+        self.history.append(dict(iteration=self.iteration, stage=stage, cost=float(f), violation=float(viol),
+                                 step=step, time=el))
+        self.consider(x, f, viol, stage)
+        if self.verbose:
+            print(f"{self.iteration:5d} {stage:5d} {f:14.6e} {viol:10.2e} {step:10.2e} {el:8.2f}", file=self.out)
+            self.out.flush()
+        if self.checkpoint:
+            atomic_savez(self.checkpoint, dict(
+                x=np.asarray(x, float), stage=np.array(stage), iteration=np.array(self.iteration),
+                problem_hash=np.array(self.p.hash()), params_json=np.array(json.dumps(
+                    {k: np.asarray(v).tolist() for k, v in stage_params.items()}))))
+        if self.callback is not None:
+            self.callback(dict(iteration=self.iteration, stage=stage, x=np.array(x), cost=float(f),
+                               violation=float(viol), step=step, time=el))
+
+
+def _plan(problem, continuation, schedule):
+    levels = problem.n_levels
+    if schedule is not None:
+        plan = []
+        for s in schedule:
+            plan.append((dict(s.get("params", {})), s.get("level", levels - 1)))
+        return plan
+    if continuation:
+        lens = {len(v) for v in continuation.values()}
+        if len(lens) != 1:
+            raise InputError(f"solve: continuation lists must all have the same length, got {continuation}")
+        K = lens.pop()
+        for k in continuation:
+            if k not in problem.params:
+                raise InputError(f"solve: continuation parameter {k!r} is not a problem parameter "
+                                 f"({sorted(problem.params)})")
+        plan = [({k: v[i] for k, v in continuation.items()}, 0 if levels > 1 else levels - 1) for i in range(K)]
+        final = plan[-1][0]
+        plan += [(dict(final), lev) for lev in range(1, levels)]
+        return plan
+    if levels > 1:
+        return [({}, lev) for lev in range(levels)]
+    return [({}, 0)]
+
+
+def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedule=None, max_iter: int = 500,
+          tol: float = 1e-8, constraint_tol: float = 1e-6, verbose: bool = False, callback=None,
+          checkpoint=None, resume=None, options=None, out=None, objective_scale="auto") -> Solution:
+    """Solve a `MotionProblem` or `MotionSequence`.
+
+    Args:
+      problem: a `MotionProblem` or a `MotionSequence`.
+      method: ``"slsqp"`` (scipy, default) or ``"ipopt"`` (needs casadi: ``pip install
+        cstorm[ipopt]``).
+      x0: initial decision vector (default ``problem.x0``).
+      continuation: ``{param: [values...]}``, a ramp of problem parameters, one stage per
+        value (defaults to ``problem.solve_options["continuation"]`` if set).
+      schedule: explicit plan ``[{"params": {...}, "level": k}, ...]``.
+      max_iter: iteration limit per stage. tol: optimality tolerance (SLSQP ``ftol``,
+        IPOPT ``tol``). constraint_tol: largest constraint violation counted as success.
+      verbose: print one line per iteration (iteration, stage, cost, violation, step,
+        time).
+      callback: ``callback(info)`` after each iteration, ``info`` a dict with
+        ``iteration, stage, x, cost, violation, step, time``; raising
+        KeyboardInterrupt stops the solve (the best iterate is returned), raising
+        StopIteration ends the current stage.
+      checkpoint: path of an ``.npz`` written atomically after every iteration.
+      resume: path of such a checkpoint to continue from (stage and iterate).
+      options: extra solver options (scipy ``options`` / IPOPT options).
+      out: stream for the progress display (default stdout).
+      objective_scale: ``"auto"`` (default; ``1 / |grad f|_inf`` at each stage's start),
+        None (1) or a positive factor applied to the objective the solver sees (SLSQP's
+        first step uses an identity Hessian, so an unscaled cost with large gradients
+        throws it far away). Reported costs are unscaled.
+    Returns:
+      `Solution`. For a sequence, its ``segments`` hold one `Solution` per segment and
+      its trajectory is their concatenation.
+    """
+    require_x64("solve")
+    from .sequence import MotionSequence
+    if isinstance(problem, MotionSequence):
+        return problem._solve(method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+                              tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
+                              checkpoint=checkpoint, options=options, out=out, objective_scale=objective_scale)
+    if not isinstance(problem, MotionProblem):
+        raise InputError(f"solve: expected a MotionProblem or MotionSequence, got {type(problem).__name__}")
+    return _solve_problem(problem, method=method, x0=x0, continuation=continuation, schedule=schedule,
+                          max_iter=max_iter, tol=tol, constraint_tol=constraint_tol, verbose=verbose,
+                          callback=callback, checkpoint=checkpoint, resume=resume, options=options, out=out,
+                          objective_scale=objective_scale)
+
+
+def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, schedule=None, max_iter=500, tol=1e-8,
+                   constraint_tol=1e-6, verbose=False, callback=None, checkpoint=None, resume=None, options=None,
+                   out=None, q0=None, v0=None, objective_scale="auto"):
+    method = method.lower()
+    if method not in ("slsqp", "ipopt"):
+        raise InputError(f"solve: method must be 'slsqp' or 'ipopt', got {method!r}")
+    if continuation is None and schedule is None:
+        continuation = problem.solve_options.get("continuation")
+        schedule = problem.solve_options.get("schedule")
+    plan = _plan(problem, continuation, schedule)
+    x = np.asarray(problem.x0 if x0 is None else x0, dtype=float).reshape(-1)
+    if x.shape != (problem.n_vars,):
+        raise InputError(f"solve: x0 must have shape ({problem.n_vars},), got {x.shape}")
+    start_stage, it0 = 0, 0
+    if resume is not None:
+        try:
+            with np.load(resume, allow_pickle=False) as z:
+                rx, rstage, rit, rhash = z["x"], int(z["stage"]), int(z["iteration"]), str(z["problem_hash"])
+        except (OSError, KeyError, ValueError) as e:
+            raise InputError(f"solve: cannot resume from {resume!r}: {e}") from None
+        if rhash != problem.hash() or rx.shape != x.shape:
+            raise InputError(f"solve: checkpoint {resume!r} belongs to another problem (hash {rhash}, "
+                             f"this problem {problem.hash()})")
+        x, start_stage, it0 = rx.astype(float), min(rstage, len(plan) - 1), rit
+
+    t0 = time.perf_counter()
+    # compile once (timed separately): values + derivatives, then the trajectory
+    data0 = problem.data(params=plan[start_stage][0], q0=q0, v0=v0)
+    tc = time.perf_counter()
+    fj = problem.compiled("fun_jac")
+    fj(jnp.asarray(x), data0)[0].block_until_ready()
+    compile_s = time.perf_counter() - tc
+
+    tracker = _Tracker(problem, verbose, callback, checkpoint, t0, constraint_tol, iteration0=it0, out=out)
+    tracker.header()
+    stages_info = []
+    message, solver_ok, interrupted = "", False, False
+    params_now = dict(problem.params)
+    ev = None
+    for si in range(start_stage, len(plan)):
+        sparams, level = plan[si]
+        params_now = {**problem.params, **{k: np.asarray(v, float) for k, v in plan[si][0].items()}}
+        data = problem.data(params=sparams, q0=q0, v0=v0)
+        me, mi = problem.constraint_masks(level)
+        ev = _Evaluator(problem, data, me, mi)
+        f_init, *_rest = ev.at(x)
+        if _rest[2] and si == start_stage:  # initial guess diverges
+            traj = problem.compiled("trajectory")(jnp.asarray(x), data)
+            check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
+        ev.fscale = _objective_scale(objective_scale, ev, x)
+        tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
+        try:
+            if method == "slsqp":
+                x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, max_iter, tol, options)
+            else:
+                x, solver_ok, message, nit = _run_ipopt(ev, x, tracker, si, params_now, max_iter, tol, options)
+        except KeyboardInterrupt:
+            interrupted = True
+            message = f"interrupted by the user in stage {si} (KeyboardInterrupt); returning the best iterate so far"
+            if tracker.best is not None:
+                x = tracker.best[0]
+            else:
+                x = ev.x if ev.x is not None else x
+            stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message,
+                                    iterations=None))
+            break
+        stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message, iterations=nit,
+                                cost=ev.at(x)[0], violation=ev.violation(x)))
+        if verbose and len(plan) > 1:
+            print(f"stage {si} ({_jsonable(sparams)}, constraint level {level}): {message}", file=tracker.out)
+
+    # final evaluation at x with all constraints of the last stage's level
+    if not interrupted and tracker.best is not None and ev is not None:
+        # prefer the solver's final point; fall back to the best iterate if the final
+        # point is worse (e.g. a failed line search left an infeasible point)
+        fx, vx = ev.at(x)[0], ev.violation(x)
+        bx, bf, bv, _ = tracker.best
+        if vx > constraint_tol and bv <= constraint_tol:
+            x = bx
+    f, *_ = ev.at(x)
+    viol = ev.violation(x)
+    data_final = ev.data
+    traj = problem.compiled("trajectory")(jnp.asarray(x), data_final)
+    traj = jax.tree_util.tree_map(np.asarray, traj)
+    if bool(traj["diverged"]):
+        try:
+            check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the final motion's rollout")
+        except DivergenceError:
+            if not interrupted:
+                raise
+    success = (not interrupted) and solver_ok and viol <= constraint_tol
+    if not interrupted and solver_ok and viol > constraint_tol:
+        message = f"{message}; but the constraint violation {viol:.3g} exceeds constraint_tol={constraint_tol:g}"
+    trajectory = dict(t=np.asarray(problem.t), q=traj["q"], v=traj["v"], a=traj["a"], tau=traj["tau"],
+                      ctrl=traj["ctrl"])
+    if traj.get("contact") is not None:
+        c = traj["contact"]
+        trajectory["contact"] = c if isinstance(c, dict) else _contact_dict(c)
+    from .. import __version__ as _ver
+    info = dict(method=method, max_iter=max_iter, tol=tol, constraint_tol=constraint_tol, stages=stages_info,
+                problem_hash=problem.hash(), problem_description=problem.describe(), cstorm_version=_ver,
+                options=_jsonable(options or {}))
+    sol = Solution(success=bool(success), message=message, cost=float(f), constraint_violation=float(viol),
+                   iterations=tracker.iteration, x=np.asarray(x), trajectory=trajectory, history=tracker.history,
+                   problem=problem.name, params={k: np.asarray(v).tolist() for k, v in params_now.items()},
+                   wall_time_s=time.perf_counter() - t0, compile_time_s=compile_s,
+                   n_evaluations=sum(1 for _ in ()) + (ev.nev if ev else 0), info=info)
+    sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
+    return sol
+
+
+def _objective_scale(spec, ev, x):
+    """The factor applied to the objective seen by the solver. ``"auto"``: ``1 /
+    |grad f(x_start)|_inf`` (so the first quasi-Newton step, taken with an identity
+    Hessian, moves no control point by more than about 1 rad or m because of the cost),
+    1 where the gradient vanishes."""
+    if spec is None:
+        return 1.0
+    if spec == "auto":
+        g = ev.at(x)[4]
+        gmax = float(np.max(np.abs(g))) if g.size else 0.0
+        return 1.0 / gmax if np.isfinite(gmax) and gmax > 1e-12 else 1.0
+    val = float(spec)
+    if not (np.isfinite(val) and val > 0):
+        raise InputError(f"solve: objective_scale must be 'auto', None or a positive number, got {spec!r}")
+    return val
+
+
+def _contact_dict(c):
+    leaves = jax.tree_util.tree_flatten_with_path(c)[0]
+    return {jax.tree_util.keystr(p).strip(".[]'\"").replace("'", "").replace("][", "/") or str(i): np.asarray(v)
+            for i, (p, v) in enumerate(leaves)}
+
+
+def _jsonable(d):
+    if isinstance(d, dict):
+        return {str(k): _jsonable(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_jsonable(v) for v in d]
+    if isinstance(d, (np.ndarray, np.generic)):
+        return np.asarray(d).tolist()
+    return d
+
+
+# ---------------------------------------------------------------------------------------
+# SLSQP
+# ---------------------------------------------------------------------------------------
+def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
+    from scipy.optimize import minimize
+
+    cons = []
+    if ev.me.any():
+        cons.append(dict(type="eq", fun=lambda x: ev.at(x)[1], jac=lambda x: ev.at(x)[5]))
+    if ev.mi.any():
+        cons.append(dict(type="ineq", fun=lambda x: ev.at(x)[2], jac=lambda x: ev.at(x)[6]))
+
+    def fun(x):
+        v = ev.at(x)
+        return ev.fscale * v[0], ev.fscale * v[4]
+
+    def cb(xk):
+        tracker.record(xk, ev, stage, params)
+
+    opts = dict(maxiter=int(max_iter), ftol=float(tol))
+    opts.update(options or {})
+    res = minimize(fun, x, jac=True, method="SLSQP", constraints=cons, options=opts, callback=cb)
+    return np.asarray(res.x), bool(res.success), f"SLSQP: {res.message}", int(res.nit)
+
+
+# ---------------------------------------------------------------------------------------
+# IPOPT through casadi
+# ---------------------------------------------------------------------------------------
+def _run_ipopt(ev, x, tracker, stage, params, max_iter, tol, options):
+    try:
+        import casadi as ca
+    except ImportError:
+        raise ProblemError("solve(method='ipopt') needs casadi: pip install 'cstorm[ipopt]' (or pip install casadi)") \
+            from None
+    from .ipopt import run_ipopt
+    return run_ipopt(ca, ev, x, tracker, stage, params, max_iter, tol, options)

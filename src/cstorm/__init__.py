@@ -20,3 +20,9 @@ from .dynamics import (
 from .trajectory import QuinticBSpline
 from .contact import ContactParams
 from . import robots
+from .geometry import signed_distance
+from .environment import Environment, Obstacle, ground, incline, platform, step
+from .contact import contact_forces, ContactData, contact_labels
+from . import simulate
+from .optimize import MotionProblem, MotionSequence, solve, Solution, load_solution, check_gradients
+from . import examples

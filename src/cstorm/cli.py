@@ -92,6 +92,56 @@ def cmd_demo(args):
     return 0
 
 
+def cmd_solve(args):
+    """Solve a shipped example problem; write summary.json, solution.npz and a CSV."""
+    import numpy as np
+
+    import cstorm as cs
+
+    problem = cs.examples.get(args.problem)()
+    out = args.out or os.path.join("cstorm-out", args.problem)
+    os.makedirs(out, exist_ok=True)
+    sol = cs.solve(problem, method=args.method, max_iter=args.max_iter, verbose=not args.json,
+                   out=sys.stderr, checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None)
+    sol.save(os.path.join(out, "solution.npz"))
+    summary = sol.summary()
+    summary["provenance"] = dict(cstorm=cs.__version__, problem=args.problem, method=args.method,
+                                 max_iter=args.max_iter)
+    _write_json(os.path.join(out, "summary.json"), summary)
+    tr = sol.trajectory
+    if tr is not None and getattr(tr, "t", None) is not None:
+        cols = [np.asarray(tr.t)[:, None], np.asarray(tr.q), np.asarray(tr.v)]
+        header = ["t"] + [f"q{i}" for i in range(cols[1].shape[1])] + [f"v{i}" for i in range(cols[2].shape[1])]
+        tmp = os.path.join(out, ".trajectory.csv.tmp")
+        np.savetxt(tmp, np.concatenate(cols, axis=1), delimiter=",", header=",".join(header), comments="")
+        os.replace(tmp, os.path.join(out, "trajectory.csv"))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{args.problem}: {'success' if sol.success else 'FAILED'}: {sol.message}; cost {sol.cost:.6g}, "
+              f"violation {sol.constraint_violation:.2e}, {sol.iterations} iterations; wrote {out}", file=sys.stderr)
+    return 0 if sol.success else 1
+
+
+def cmd_check_gradients(args):
+    import cstorm as cs
+
+    res = cs.check_gradients(cs.examples.get(args.problem)())
+    if args.json:
+        print(json.dumps({k: v for k, v in res.items() if isinstance(v, (int, float, str, bool))}))
+    else:
+        print(f"{args.problem}: max relative error of exact vs central-difference gradients: "
+              f"{res['max_rel_error']:.3e}", file=sys.stderr)
+    return 0
+
+
+def _write_json(path, obj):
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=2, default=float)
+    os.replace(tmp, path)
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="cstorm", description="Optimal motions for robots that make and break contact.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -105,6 +155,18 @@ def build_parser():
     pd.add_argument("--t-final", type=float, default=3.0)
     pd.add_argument("--json", action="store_true")
     pd.set_defaults(fn=cmd_demo)
+    ps = sub.add_parser("solve", help="solve a shipped motion problem (e.g. acrobot)")
+    ps.add_argument("problem")
+    ps.add_argument("--out", default=None)
+    ps.add_argument("--method", choices=["slsqp", "ipopt"], default="slsqp")
+    ps.add_argument("--max-iter", type=int, default=500)
+    ps.add_argument("--checkpoint", action="store_true", help="write DIR/checkpoint.npz every iteration")
+    ps.add_argument("--json", action="store_true")
+    ps.set_defaults(fn=cmd_solve)
+    pg = sub.add_parser("check-gradients", help="exact vs finite-difference gradients of a shipped problem")
+    pg.add_argument("problem")
+    pg.add_argument("--json", action="store_true")
+    pg.set_defaults(fn=cmd_check_gradients)
     return p
 
 

@@ -32,7 +32,7 @@ def acrobot_model(length: float = 1.0, mass: float = 1.0, gravity: float = 9.81)
     return b.build()
 
 
-def acrobot(t_final: float = 4.0, n_ctrl: int = 14, dt: float = 0.01, integrator: str = "rk4",
+def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator: str = "rk4",
             continuation: bool = True):
     """Acrobot swing-up: from hanging at rest, ``q = (0, 0)``, to upright at rest,
     ``q = (pi, 0)``, in ``t_final`` s, moving only the elbow; minimize the integral of
@@ -41,8 +41,10 @@ def acrobot(t_final: float = 4.0, n_ctrl: int = 14, dt: float = 0.01, integrator
     The elbow's path is a quintic B-spline (``n_ctrl`` control points) that starts and
     ends at rest at 0 rad by construction; the shoulder's final angle and velocity are
     terminal equality constraints (``pi`` rad, 0 rad/s). The default solve ramps the
-    shoulder's target through ``pi * (0.25, 0.5, 0.75, 1)`` (continuation on the problem
-    parameter ``"target"``), warm-starting each stage.
+    shoulder's target through ``pi * (0.25, 0.5, 0.75, 0.875, 1)`` (continuation on the
+    problem parameter ``"target"``), warm-starting each stage: straight at ``pi`` SLSQP
+    wanders (reaching the unstable upright equilibrium at rest is badly conditioned for
+    single shooting), and the last step of the ramp needs the finer 0.875 stop.
 
     Returns a `MotionProblem`; ``cs.solve(problem)`` solves it (the problem's
     ``solve_options`` hold the continuation schedule).
@@ -65,5 +67,5 @@ def acrobot(t_final: float = 4.0, n_ctrl: int = 14, dt: float = 0.01, integrator
         initial_guess={"elbow": (t, guess)},
     )
     if continuation:
-        prob.solve_options["continuation"] = {"target": [np.pi * s for s in (0.25, 0.5, 0.75, 1.0)]}
+        prob.solve_options["continuation"] = {"target": [np.pi * s for s in (0.25, 0.5, 0.75, 0.875, 1.0)]}
     return prob

@@ -1,0 +1,151 @@
+"""Motion optimization on the acrobot: exact gradients vs central differences, a fast
+swing-up solve reaching upright, solution save/load, Ctrl-C returning the best iterate,
+checkpoint + resume, sequences, float64 guard.
+
+One problem object (module fixture) is shared by every test, so its values+Jacobian
+function compiles once (its trajectory function once more).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import jax
+
+import cstorm as cs
+from cstorm import examples
+from cstorm.errors import ProblemError
+from cstorm.optimize import MotionProblem, MotionSequence, check_gradients, load_solution, solve, costs, constraints
+
+FAST = dict(t_final=3.0, n_ctrl=16, dt=0.02)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return examples.get("acrobot")(**FAST)
+
+
+@pytest.fixture(scope="module")
+def solution(problem):
+    return solve(problem, max_iter=300)
+
+
+def test_registry():
+    assert "acrobot" in examples.names()
+    assert examples.get("acrobot") is examples.acrobot
+    with pytest.raises(cs.InputError, match="unknown example"):
+        examples.get("nope")
+
+
+def test_gradients_match_central_differences(problem):
+    rep = check_gradients(problem)
+    # measured: ~1e-9 .. 1e-8 at the initial guess and at a random nearby point
+    assert rep["max_rel_error"] < 1e-6, rep["points"]
+    assert len(rep["points"]) == 2 and rep["points"][0]["n_outputs"] == 1 + problem.n_eq + problem.n_ineq
+
+
+def test_acrobot_swing_up_reaches_upright(problem, solution):
+    s = solution
+    assert s.success, s.message
+    qT, vT = s.trajectory["q"][-1], s.trajectory["v"][-1]
+    assert abs(qT[0] - np.pi) < 1e-3 and abs(vT[0]) < 1e-3, (qT, vT)  # shoulder upright, at rest
+    assert abs(qT[1]) < 1e-9 and abs(vT[1]) < 1e-9  # elbow: by construction
+    assert s.constraint_violation < 1e-6
+    assert s.trajectory["q"].shape == (problem.n_steps + 1, 2) and s.trajectory["t"][-1] == pytest.approx(3.0)
+    # the reported cost is the integral of tau^2 / 2 (trapezoid check on the grid)
+    tau = s.trajectory["tau"][:, 1]
+    trap = np.trapezoid(0.5 * tau**2, s.trajectory["t"])
+    assert s.cost == pytest.approx(trap, rel=1e-2)
+    assert len(s.history) == s.iterations and s.history[-1]["iteration"] == s.iterations
+    assert len(s.segments) == 1 and s.segments[0].cost == s.cost
+
+
+def test_solution_save_load_round_trip(solution, tmp_path):
+    p = solution.save(tmp_path / "sol")
+    assert p.endswith(".npz")
+    with np.load(p, allow_pickle=False) as z:  # no pickled objects inside
+        meta = json.loads(str(z["meta_json"]))
+    assert meta["format"] == "cstorm-solution-1"
+    s2 = load_solution(p)
+    for k in ("success", "message", "cost", "constraint_violation", "iterations", "problem"):
+        assert getattr(s2, k) == getattr(solution, k)
+    np.testing.assert_array_equal(s2.x, solution.x)
+    for k in ("t", "q", "v", "a", "tau", "ctrl"):
+        np.testing.assert_array_equal(s2.trajectory[k], solution.trajectory[k])
+    assert s2.history == solution.history
+    assert len(s2.segments) == 1 and s2.segments[0].cost == solution.cost
+    assert not list(tmp_path.glob(".tmp-*"))  # atomic write left no temporary
+
+
+def test_keyboard_interrupt_returns_best_iterate(problem):
+    seen = []
+
+    def cb(info):
+        seen.append(info)
+        if info["iteration"] == 6:
+            raise KeyboardInterrupt
+
+    s = solve(problem, callback=cb, max_iter=300)
+    assert not s.success and "interrupted" in s.message
+    assert s.iterations == 6 and len(s.history) == 6
+    # the best iterate of the interrupted stage: least violation (or lowest feasible cost)
+    stage = seen[-1]["stage"]
+    in_stage = [h for h in s.history if h["stage"] == stage]
+    tol = 1e-6
+    feas = [h for h in in_stage if h["violation"] <= tol]
+    best = min(feas, key=lambda h: h["cost"]) if feas else min(in_stage, key=lambda h: h["violation"])
+    assert s.constraint_violation == pytest.approx(best["violation"], rel=1e-9, abs=1e-12)
+    assert np.isfinite(s.cost) and s.trajectory["q"].shape[0] == problem.n_steps + 1
+
+
+def test_checkpoint_and_resume(problem, solution, tmp_path):
+    ck = tmp_path / "ck.npz"
+
+    def stop(info):
+        if info["iteration"] == 25:
+            raise KeyboardInterrupt
+
+    s1 = solve(problem, checkpoint=str(ck), callback=stop, max_iter=300)
+    assert "interrupted" in s1.message and ck.exists()
+    with np.load(ck, allow_pickle=False) as z:
+        assert int(z["iteration"]) == 25
+        stage = int(z["stage"])
+    s2 = solve(problem, resume=str(ck), max_iter=300)
+    assert s2.success, s2.message
+    assert s2.history[0]["iteration"] == 26 and s2.history[0]["stage"] == stage
+    assert abs(s2.trajectory["q"][-1][0] - np.pi) < 1e-3
+    # a checkpoint of another problem is refused
+    other = examples.get("acrobot")(t_final=3.0, n_ctrl=15, dt=0.02)
+    with pytest.raises(cs.InputError, match="another problem"):
+        solve(other, resume=str(ck))
+
+
+def test_sequence_segments_chain(problem, solution):
+    seq = MotionSequence([problem, problem], name="twice")
+    s = solve(seq, max_iter=2, continuation={"target": [np.pi]})
+    assert len(s.segments) == 2
+    end0 = s.segments[0].trajectory
+    np.testing.assert_allclose(s.segments[1].trajectory["q"][0], end0["q"][-1], atol=1e-12)
+    np.testing.assert_allclose(s.segments[1].trajectory["v"][0], end0["v"][-1], atol=1e-12)
+    assert s.trajectory["t"][-1] == pytest.approx(6.0)
+    assert s.trajectory["q"].shape[0] == 2 * problem.n_steps + 1
+
+
+def test_problem_validation():
+    m = examples.acrobot_model()
+    with pytest.raises(ProblemError, match="no joint named"):
+        MotionProblem(m, ["wrist"], 1.0, 8, 0.1, np.zeros(2))
+    with pytest.raises(ProblemError, match="unknown problem parameter"):
+        MotionProblem(m, ["elbow"], 1.0, 8, 0.1, np.zeros(2),
+                      constraints=[constraints.TerminalState("shoulder", q="nope")])
+
+
+def test_float64_required():
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ProblemError, match="jax_enable_x64"):
+            MotionProblem(examples.acrobot_model(), ["elbow"], 1.0, 8, 0.1, np.zeros(2))
+    finally:
+        jax.config.update("jax_enable_x64", True)

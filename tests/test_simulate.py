@@ -183,3 +183,25 @@ def test_long_rollout_reverse_mode_bounded_memory():
         # sqrt(N) ~ 142 segments: per-segment carries plus one segment's residuals;
         # storing all 20,000 steps' stage intermediates would take tens of MB
         assert mem.temp_size_in_bytes < 8e6, mem.temp_size_in_bytes
+
+
+def test_ball_dropped_on_ground_comes_to_rest():
+    """Contact wrenches enter the rollout: a ball dropped from 5 cm settles at the
+    contact law's equilibrium depth, and the per-point contact data is recorded."""
+    b = cs.ModelBuilder("ball", gravity=(0.0, 0.0, -9.81))
+    b.add_link("ball", mass=1.0, inertia=np.eye(3) * 0.004)
+    b.add_geom("ball", cs.Sphere(0.1))
+    m = b.build(floating_base="free")
+    P = cs.ContactParams(stiffness=2000.0, damping=40.0, d_on=0.004, d_off=0.0, friction=0.5)
+    env = cs.Environment([cs.ground()])
+    q0 = np.array([0.0, 0.0, 0.15, 1.0, 0.0, 0.0, 0.0])
+    tr = simulate(m, q0, np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0]), t_final=1.5, dt=2e-3, env=env, contact=P)
+    d = tr.contact.d[:, 0]
+    assert tr.contact.f_ext.shape == (tr.t.size, 1, 6)
+    assert d[0] == pytest.approx(0.05, abs=1e-9) and d.min() < 0.0
+    # at rest: N = k (d_on - d) = m g in the beta = 1 region
+    assert d[-1] == pytest.approx(0.004 - 9.81 / 2000.0, abs=2e-4)
+    assert abs(d[-1] - d[-50]) < 1e-5  # stopped bouncing
+    # friction turned the initial slide into rolling: the contact point no longer slips
+    assert np.linalg.norm(tr.contact.velocity[-1, 0]) < 2e-3 < np.linalg.norm(tr.v[-1, :3])
+    assert tr.contact.normal_magnitude[-1, 0] == pytest.approx(9.81, rel=2e-2)

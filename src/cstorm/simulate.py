@@ -416,8 +416,8 @@ class Trajectory:
 
 
 def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=None, spline=None,
-             integrator: str = "rk4", contact_fn=None, cost_fn=None, params=None, segment=None,
-             q_bound: float = 1e4, v_bound: float = 1e4) -> Trajectory:
+             integrator: str = "rk4", env=None, contact=None, contact_fn=None, cost_fn=None, params=None,
+             segment=None, q_bound: float = 1e4, v_bound: float = 1e4) -> Trajectory:
     """Simulate a motion (eager, host-side results).
 
     Args:
@@ -428,7 +428,12 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
       ctrl: (n_ctrl, n_active) control points of the active paths (in the order of
         ``active`` as given) on ``spline`` (a `QuinticBSpline` over ``[0, t_final]``). With
         ``ctrl=None`` the active joints are held at their ``q0`` values.
-      integrator, contact_fn, cost_fn, params, segment, q_bound, v_bound: as `rollout`.
+      env, contact: optional `cstorm.Environment` and `ContactParams` (or a per-pair
+        mapping, see `cstorm.contact_forces`): contact wrenches act on the robot and the
+        trajectory's ``contact`` holds the per-point `ContactData` on the grid. Both are
+        dynamic arguments (new values reuse the compiled rollout).
+      integrator, contact_fn, cost_fn, params, segment, q_bound, v_bound: as `rollout`
+        (``contact_fn`` and ``cost_fn`` are static: pass module-level functions).
     Returns:
       `Trajectory`. Raises `DivergenceError` if the rollout diverges.
     """
@@ -459,7 +464,13 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
         paths = dict(qa=Bs["B0"] @ ctrl, va=Bs["B1"] @ ctrl, aa=Bs["B2"] @ ctrl)
         if integrator == "rk4":
             paths.update(qm=Bs["M0"] @ ctrl, vm=Bs["M1"] @ ctrl, am=Bs["M2"] @ ctrl)
-    res = _simulate_jit(model, q0, v0, paths, params, jnp.asarray(h, q0.dtype), layout=layout, N=N, integrator=integrator,
+    if env is not None:
+        if contact_fn is not None:
+            raise InputError("simulate: give env/contact or contact_fn, not both")
+        if contact is None:
+            raise InputError("simulate: env given without contact parameters (contact=cs.ContactParams(...))")
+    res = _simulate_jit(model, q0, v0, paths, params, jnp.asarray(h, q0.dtype), env, contact, layout=layout, N=N,
+                        integrator=integrator,
                         contact_fn=contact_fn, cost_fn=cost_fn, segment=segment, q_bound=jnp.asarray(float(q_bound)),
                         v_bound=jnp.asarray(float(v_bound)))
     check_divergence(model, res, h, "simulate")
@@ -470,7 +481,13 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "N", "integrator", "contact_fn", "cost_fn", "segment"))
-def _simulate_jit(model, q0, v0, paths, params, h, *, layout, N, integrator, contact_fn, cost_fn, segment, q_bound,
-                  v_bound):
+def _simulate_jit(model, q0, v0, paths, params, h, env, contact, *, layout, N, integrator, contact_fn, cost_fn,
+                  segment, q_bound, v_bound):
+    if env is not None:
+        from .contact import contact_forces
+
+        def contact_fn(q, v):
+            out = contact_forces(model, env, contact, q, v)
+            return out.f_ext, out
     return rollout(model, layout, q0, v0, paths, h, N, integrator=integrator, contact_fn=contact_fn,
                    cost_fn=cost_fn, params=params, segment=segment, q_bound=q_bound, v_bound=v_bound)

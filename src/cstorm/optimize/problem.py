@@ -192,25 +192,20 @@ class MotionProblem:
 
     # ------------------------------------------------------------------ data and contact
     def _make_contact_fn(self, env, contact, contact_fn):
+        """``(model, env, contact_params, q, v) -> (f_ext, data)`` or None."""
         if contact_fn is not None:
-            return contact_fn
+            if env is not None:
+                raise ProblemError("MotionProblem: give env/contact or contact_fn, not both")
+            return lambda model, env_, params_, q, v: contact_fn(model, q, v)
         if env is None:
             return None
-        from .. import contact as _contact
-        if not hasattr(_contact, "contact_forces"):
-            raise ProblemError("MotionProblem: this cstorm build has no contact_forces; pass contact_fn=")
         if contact is None:
             raise ProblemError("MotionProblem: env given without contact parameters (contact=cs.ContactParams(...))")
+        from ..contact import contact_forces
 
-        def fn(model, q, v):
-            out = _contact.contact_forces(model, env, contact, q, v)
-            if isinstance(out, tuple) and len(out) == 2:
-                data, f_ext = out
-                if getattr(data, "shape", None) == (model.n_bodies, 6):
-                    data, f_ext = f_ext, data
-                return f_ext, data
-            f_ext = getattr(out, "f_ext")
-            return f_ext, out
+        def fn(model, env_, params_, q, v):
+            out = contact_forces(model, env_, params_, q, v)
+            return out.f_ext, out
         return fn
 
     def data(self, params=None, q0=None, v0=None, model=None):
@@ -226,6 +221,8 @@ class MotionProblem:
                  q0=jnp.asarray(self.q0 if q0 is None else q0, dtype=jnp.float64),
                  v0=jnp.asarray(self.v0 if v0 is None else v0, dtype=jnp.float64),
                  params={k: jnp.asarray(v) for k, v in p.items()}, basis=self._basis)
+        if self.env is not None:
+            d["env"], d["contact"] = self.env, self.contact
         if self.qa_final is not None:
             d["qa_final"] = jnp.asarray(self.qa_final)
         if self.va_final is not None:
@@ -269,7 +266,7 @@ class MotionProblem:
 
         cfn = None
         if self._contact_fn is not None:
-            cfn = lambda q, v: self._contact_fn(model, q, v)
+            cfn = lambda q, v: self._contact_fn(model, data.get("env"), data.get("contact"), q, v)
         res = rollout(model, self.layout, data["q0"], data["v0"], paths, self.dt, self.n_steps,
                       integrator=self.integrator, contact_fn=cfn, cost_fn=cost_fn if running else None,
                       params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,

@@ -76,6 +76,12 @@ def _force_cross_matrix(h):
     return -jnp.block([[n, f], [f, jnp.zeros((3, 3), dtype=h.dtype)]])
 
 
+def _cross_force_cols(X, h):
+    """Columns ``x x* h`` (6, k) for twists X (6, k) and one wrench h (6,): ``B(h) @ X``."""
+    w, u = X[:3], X[3:]
+    return jnp.concatenate([sp._cross3(w, h[:3]) + sp._cross3(u, h[3:]), sp._cross3(w, h[3:])])
+
+
 class _Kin(NamedTuple):
     """Configuration- and velocity-dependent terms in world coordinates (lists over
     bodies; twists and wrenches about the world origin)."""
@@ -100,7 +106,7 @@ def _kinematics(model, q, v, f_ext):
     for i, par in enumerate(model.parents):
         s = model.v_starts[i]
         Ji = sp.act_motion(oR[i], op[i], Ss[i])
-        vJi = Ji @ v[s: s + model.joints[i].nv]
+        vJi = sp.mv(Ji, v[s: s + model.joints[i].nv])
         if par < 0:
             ovi = vJi
             dVdq.append(None)
@@ -109,11 +115,11 @@ def _kinematics(model, q, v, f_ext):
             ovi = ov[par] + vJi
             dVdq.append(sp.cross_motion(ov[par], Ji))
             dAdv.append(sp.cross_motion(ovi + ov[par], Ji))
-        c = oR[i] @ model.com[i] + op[i]
-        Ic = oR[i] @ model.inertia[i] @ oR[i].T
+        c = sp.mv(oR[i], model.com[i]) + op[i]
+        Ic = sp.mm(sp.mm(oR[i], model.inertia[i]), oR[i].T)
         oIi = sp.spatial_inertia(model.mass[i], c, Ic)
-        hi = oIi @ ovi
-        X = oIi @ sp.ad(ovi)
+        hi = sp.mv(oIi, ovi)
+        X = sp.mm(oIi, sp.ad(ovi))
         J.append(Ji), ov.append(ovi), vJ.append(vJi), oI.append(oIi), h.append(hi)
         dY.append(_force_cross_matrix(hi) - X - X.T)
     Y = list(oI)
@@ -136,8 +142,8 @@ def _dynamics(model, kin, a, f_ext):
     oa, F = [], []
     for i, par in enumerate(model.parents):
         s = model.v_starts[i]
-        oai = (a0 if par < 0 else oa[par]) + kin.J[i] @ a[s: s + model.joints[i].nv] + sp.cross_motion(kin.ov[i], kin.vJ[i])
-        fi = kin.oI[i] @ oai + sp.cross_force(kin.ov[i], kin.h[i])
+        oai = (a0 if par < 0 else oa[par]) + sp.mv(kin.J[i], a[s: s + model.joints[i].nv]) + sp.cross_motion(kin.ov[i], kin.vJ[i])
+        fi = sp.mv(kin.oI[i], oai) + sp.cross_force(kin.ov[i], kin.h[i])
         if f_ext is not None:
             fi = fi - f_ext[i]
         oa.append(oai), F.append(fi)
@@ -145,7 +151,7 @@ def _dynamics(model, kin, a, f_ext):
         par = model.parents[i]
         if par >= 0:
             F[par] = F[par] + F[i]
-    tau = jnp.concatenate([kin.J[i].T @ F[i] for i in range(nb)]) + model.armature * a
+    tau = jnp.concatenate([sp.mv(kin.J[i].T, F[i]) for i in range(nb)]) + model.armature * a
     return oa, F, tau
 
 
@@ -153,12 +159,12 @@ def _mass_matrix(model, kin):
     """M (nv, nv) from the world Jacobian columns and composite inertias:
     ``M_jk = J_j^T Ycrb_k J_k`` for j an ancestor of k (or k itself)."""
     nb = model.n_bodies
-    A = [kin.Ycrb[k] @ kin.J[k] for k in range(nb)]
+    A = [sp.mm(kin.Ycrb[k], kin.J[k]) for k in range(nb)]
     blocks = [[None] * nb for _ in range(nb)]
     for k in range(nb):
         j = k
         while j >= 0:
-            blk = kin.J[j].T @ A[k]
+            blk = sp.mm(kin.J[j].T, A[k])
             blocks[j][k] = blk
             if j != k:
                 blocks[k][j] = blk.T
@@ -193,39 +199,39 @@ def _rnea_partials(model, kin, A, oa, F, f_ext):
         p = par[k]
         if p < 0:
             dAdq_k = sp.cross_motion(a0, J[k])
-            dFdq_k = Y[k] @ dAdq_k
+            dFdq_k = sp.mm(Y[k], dAdq_k)
         else:
             dAdq_k = sp.cross_motion(oa[p], J[k]) + sp.cross_motion(kin.ov[p], kin.dVdq[k])
-            dFdq_k = dY[k] @ kin.dVdq[k] + Y[k] @ dAdq_k
+            dFdq_k = sp.mm(dY[k], kin.dVdq[k]) + sp.mm(Y[k], dAdq_k)
         dAdq.append(dAdq_k), dFdq.append(dFdq_k)
-        dFdv.append(dY[k] @ J[k] + Y[k] @ kin.dAdv[k])
-        Bv.append(dY[k].T @ J[k])
+        dFdv.append(sp.mm(dY[k], J[k]) + sp.mm(Y[k], kin.dAdv[k]))
+        Bv.append(sp.mm(dY[k].T, J[k]))
         if f_ext is not None:
             G = F[k] + kin.Fext[k]
-            BF = _force_cross_matrix(kin.Fext[k])
-            dFdq_anc.append(dFdq_k + _force_cross_matrix(G) @ J[k])
-            dFdq_own.append(dFdq_k + BF @ J[k])
-            E.append(BF.T @ J[k])
+            BF = _cross_force_cols(J[k], kin.Fext[k])  # B(Fext) J;  B(h)^T = -B(h)
+            dFdq_anc.append(dFdq_k + _cross_force_cols(J[k], G))
+            dFdq_own.append(dFdq_k + BF)
+            E.append(-BF)
         else:
-            dFdq_anc.append(dFdq_k + _force_cross_matrix(F[k]) @ J[k])
+            dFdq_anc.append(dFdq_k + _cross_force_cols(J[k], F[k]))
             dFdq_own.append(dFdq_k)
             E.append(None)
     bq = [[None] * nb for _ in range(nb)]
     bv = [[None] * nb for _ in range(nb)]
     for k in range(nb):
         # rows of k and of its ancestors j, column k
-        bq[k][k] = J[k].T @ dFdq_own[k]
-        bv[k][k] = J[k].T @ dFdv[k]
+        bq[k][k] = sp.mm(J[k].T, dFdq_own[k])
+        bv[k][k] = sp.mm(J[k].T, dFdv[k])
         j = par[k]
         while j >= 0:
-            bq[j][k] = J[j].T @ dFdq_anc[k]
-            bv[j][k] = J[j].T @ dFdv[k]
+            bq[j][k] = sp.mm(J[j].T, dFdq_anc[k])
+            bv[j][k] = sp.mm(J[j].T, dFdv[k])
             # row k (descendant), column j (ancestor)
-            lq = A[k].T @ dAdq[j] + (Bv[k].T @ kin.dVdq[j] if kin.dVdq[j] is not None else 0.0)
+            lq = sp.mm(A[k].T, dAdq[j]) + (sp.mm(Bv[k].T, kin.dVdq[j]) if kin.dVdq[j] is not None else 0.0)
             if E[k] is not None:
-                lq = lq + E[k].T @ J[j]
+                lq = lq + sp.mm(E[k].T, J[j])
             bq[k][j] = lq
-            bv[k][j] = A[k].T @ kin.dAdv[j] + Bv[k].T @ J[j]
+            bv[k][j] = sp.mm(A[k].T, kin.dAdv[j]) + sp.mm(Bv[k].T, J[j])
             j = par[j]
     dq = _assemble(model, bq)
     dv = _assemble(model, bv)

@@ -22,6 +22,7 @@ from helpers import manifold_fd, random_state, random_tree
 
 TOPOLOGIES = (0, 1, 2, 3, 5)
 PARAMS = (0, 1, 2)
+SLOW = pytest.mark.slow  # compile-heavy variants (run with -m slow or without -m filtering)
 
 # Compile-time budget: these unrolled trees take ~5-40 s each to compile with XLA's full
 # CPU optimization on 2 cores; the tests only need correct numbers, so they compile with
@@ -104,7 +105,8 @@ NAMES = ("y", "dq", "dv", "da_active", "dtau_passive", "df_ext")
 
 
 # ------------------------------------------------------------------ autodiff vs finite differences
-@pytest.mark.parametrize("topology,kind", [(0, "mixed"), (1, "mixed"), (3, "mixed"), (1, "all"), (1, "none")])
+@pytest.mark.parametrize("topology,kind", [(0, "mixed"), (1, "mixed"), pytest.param(3, "mixed", marks=SLOW),
+                                           pytest.param(1, "all", marks=SLOW), pytest.param(1, "none", marks=SLOW)])
 def test_autodiff_reference_matches_finite_differences(topology, kind):
     """Tier (c): the oracle itself against central differences on the manifold, at a
     random point and at zero angles / identity rotations."""
@@ -125,7 +127,7 @@ def _compare(got, want, tol=1e-10):
     return errs
 
 
-@pytest.mark.parametrize("topology", TOPOLOGIES)
+@pytest.mark.parametrize("topology", [t if t in (0, 1, 3) else pytest.param(t, marks=SLOW) for t in TOPOLOGIES])
 def test_analytic_hybrid_matches_autodiff(topology):
     """Several parameter draws of one topology (one compilation each way), random
     states and the neutral configuration, external wrenches on every body."""
@@ -138,7 +140,7 @@ def test_analytic_hybrid_matches_autodiff(topology):
                      _hyb_ad(model, q, v, aa, tp, active=active, f_ext=f_ext))
 
 
-@pytest.mark.parametrize("topology", (1, 2))
+@pytest.mark.parametrize("topology", (1, pytest.param(2, marks=SLOW)))
 def test_analytic_hybrid_without_fext(topology):
     """f_ext=None: df_ext is still returned (derivative at a zero wrench)."""
     for p in PARAMS[:2]:
@@ -149,18 +151,34 @@ def test_analytic_hybrid_without_fext(topology):
         _compare(got, _hyb_ad(model, q, v, aa, tp, active=active))
 
 
-@pytest.mark.parametrize("topology", (1, 3))
-@pytest.mark.parametrize("with_fext", (True, False))
+@pytest.mark.parametrize("topology,with_fext", [(1, True), pytest.param(3, True, marks=SLOW),
+                                                pytest.param(1, False, marks=SLOW)])
 def test_analytic_rnea_and_aba_match_autodiff(topology, with_fext):
+    """Reference: jacfwd through the hybrid algorithm with every DoF active (= RNEA) or
+    passive (= ABA); the same compiled references as the finite-difference test."""
     for p in PARAMS[:2]:
         model = _tree(topology, p)
         rng = np.random.default_rng(p)
         q, v, a = random_state(model, rng)
         f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6))) if with_fext else None
-        r = _compare(_rnea(model, q, v, a, f_ext), _rnea_ad(model, q, v, a, f_ext))
+        z = jnp.zeros(0)
+        ref = _hyb_ad(model, q, v, a, z, active=_active_mask(model, topology, "all"), f_ext=f_ext)
+        _compare(_rnea(model, q, v, a, f_ext), D.RNEADerivatives(ref.y, ref.dq, ref.dv, ref.da_active, ref.df_ext))
         tau = jnp.asarray(rng.normal(size=model.nv))
-        _compare(_aba(model, q, v, tau, f_ext), _aba_ad(model, q, v, tau, f_ext))
-        del r
+        ref = _hyb_ad(model, q, v, z, tau, active=_active_mask(model, topology, "none"), f_ext=f_ext)
+        _compare(_aba(model, q, v, tau, f_ext), D.ABADerivatives(ref.y, ref.dq, ref.dv, ref.dtau_passive, ref.df_ext))
+
+
+@SLOW
+def test_autodiff_rnea_and_aba_references():
+    """The public autodiff references rnea_derivatives_ad / aba_derivatives_ad (jacfwd
+    through `_rnea`, and through `_hybrid` with all DoFs passive)."""
+    model = _tree(1, 0)
+    rng = np.random.default_rng(5)
+    q, v, a = random_state(model, rng)
+    f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6)))
+    _compare(_rnea(model, q, v, a, f_ext), _rnea_ad(model, q, v, a, f_ext))
+    _compare(_aba(model, q, v, a, f_ext), _aba_ad(model, q, v, a, f_ext))
 
 
 def test_identities():
@@ -277,3 +295,50 @@ def test_against_pinocchio(rel, floating):
         assert _rel(s.dq, P.T @ dq @ P) < 1e-9
         assert _rel(s.dv, P.T @ dv @ P) < 1e-9
         assert _rel(s.dtau, P.T @ sym(dt) @ P) < 1e-9
+
+
+# ------------------------------------------------------------------ custom JVP rule in a rollout
+def test_fast_rule_rollout_gradients_match_autodiff():
+    """A few explicit-Euler steps (lax.scan) of hybrid dynamics on a tree with free, ball,
+    revolute and prismatic joints: gradients (reverse mode) and a JVP (forward mode) of a
+    scalar loss w.r.t. link masses and joint placements (model leaves: the autodiff
+    fallback of the rule), the initial configuration (tangent), initial velocity,
+    controls and external wrenches agree between `hybrid_dynamics_fast` and plain
+    autodiff of `hybrid_dynamics`."""
+    from cstorm.dynamics.derivatives_fast import hybrid_dynamics_fast
+
+    base = random_tree(14, 0, n_bodies=4, joint_types=("ball", "revolute", "prismatic", "free"))
+    assert {type(j) for j in base.joints} == {cs.Free, cs.Ball, cs.Revolute, cs.Prismatic}
+    rng = np.random.default_rng(0)
+    q0, v0, _ = random_state(base, rng)
+    active = tuple(isinstance(j, (cs.Revolute, cs.Prismatic)) for j in base.joints for _ in range(j.nv))
+    act = np.array(active)
+    ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
+    T, dt = 4, 0.01
+    U = jnp.asarray(rng.normal(size=(T, len(ia))))
+    F = jnp.asarray(rng.normal(size=(base.n_bodies, 6)))
+
+    def loss(hyb, mass, joint_p, dq0, v0, U, F):
+        model = base.replace(mass=mass, joint_p=joint_p)
+
+        def step(c, u):
+            q, v = c
+            ta, ap = hyb(model, q, v, u, -0.1 * v[ip], active, F)
+            a = jnp.zeros(model.nv).at[ia].set(u).at[ip].set(ap)
+            return (cs.integrate(model, q, v, dt), v + dt * a), jnp.sum(ta ** 2)
+
+        (q, v), e = jax.lax.scan(step, (cs.integrate(model, q0, dq0), v0), U)
+        return jnp.sum(jnp.sin(q)) + jnp.sum(v * jnp.arange(model.nv)) + 0.1 * jnp.sum(e)
+
+    args = (base.mass, base.joint_p, jnp.zeros(base.nv), v0, U, F)
+    tangents = tuple(jnp.asarray(rng.normal(size=np.shape(x))) for x in args)
+    out = {}
+    for name, hyb in (("plain", cs.hybrid_dynamics), ("fast", hybrid_dynamics_fast)):
+        f = functools.partial(loss, hyb)
+        grads = jit(jax.grad(f, argnums=tuple(range(len(args)))))(*args)
+        val, jvp = jit(lambda a, t: jax.jvp(f, a, t))(args, tangents)
+        out[name] = (grads, val, jvp)
+    (g0, v0_, j0), (g1, v1_, j1) = out["plain"], out["fast"]
+    for k, (x, y) in enumerate(zip(g1, g0)):
+        assert _rel(x, y) < 1e-9, (k, _rel(x, y))
+    assert abs(v1_ - v0_) < 1e-10 and abs(j1 - j0) < 1e-9 * max(1.0, abs(j0))

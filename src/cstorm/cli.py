@@ -109,9 +109,13 @@ def cmd_solve(args):
                                  max_iter=args.max_iter)
     _write_json(os.path.join(out, "summary.json"), summary)
     tr = sol.trajectory
-    if tr is not None and getattr(tr, "t", None) is not None:
-        cols = [np.asarray(tr.t)[:, None], np.asarray(tr.q), np.asarray(tr.v)]
-        header = ["t"] + [f"q{i}" for i in range(cols[1].shape[1])] + [f"v{i}" for i in range(cols[2].shape[1])]
+    if tr is not None and "t" in tr:
+        cols = [np.asarray(tr["t"])[:, None], np.asarray(tr["q"]), np.asarray(tr["v"])]
+        model = problem.model
+        header = ["t"] + [f"q_{n}" if model.joints[i].nq == 1 else f"q_{n}_{k}" for i, n in enumerate(model.joint_names)
+                          for k in range(model.joints[i].nq)]
+        header += [f"v_{n}" if model.joints[i].nv == 1 else f"v_{n}_{k}" for i, n in enumerate(model.joint_names)
+                   for k in range(model.joints[i].nv)]
         tmp = os.path.join(out, ".trajectory.csv.tmp")
         np.savetxt(tmp, np.concatenate(cols, axis=1), delimiter=",", header=",".join(header), comments="")
         os.replace(tmp, os.path.join(out, "trajectory.csv"))

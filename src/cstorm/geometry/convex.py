@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from ..spatial import safe_norm
 from .gjk import CONTAINS, SupportPoint, gjk
 from .epa import epa
-from .kkt import FIXED, PEN_FACE, PEN_Z, SEP, Keys, implicit_tangent, newton_polish, outputs
+from .kkt import FIXED, PEN_FACE, PEN_Z, SEP, Keys, implicit_tangent, merge_duplicates, newton_polish, outputs
 from .support import FLAT_KINDS, bounding_radius, core_of, support
 
 
@@ -52,7 +52,7 @@ def _config(kind_a, kind_b):
     return dict(
         gjk_iter=64 if curved else 32,
         epa_iter=32 if curved else 40,
-        polish=3 if curved else 0,
+        polish=6 if curved else 0,
         flat=(kind_a in FLAT_KINDS and kind_b in FLAT_KINDS),
     )
 
@@ -114,8 +114,9 @@ def _solve(theta):
         keys = keys._replace(mode=jnp.where(contact, pen_mode, SEP).astype(jnp.int32))
     mu = jnp.sum(jnp.where(mask, pts.w @ (lam @ pts.w), 0.0)) / jnp.maximum(jnp.sum(mask), 1)
     x = jnp.concatenate([lam, mu[None], n])
+    x, keys = merge_duplicates(x, theta, keys)
     if cfg["polish"]:
-        x = newton_polish(x, theta, keys, cfg["polish"])
+        x, keys = newton_polish(x, theta, keys, cfg["polish"])
     return x, keys
 
 

@@ -95,7 +95,7 @@ def _face_geometry(Vw, F, fvalid, scale):
     return nu, dist, good
 
 
-def epa(support_m, simp: Simplex, max_iter: int, scale, tol=1e-11):
+def epa(support_m, simp: Simplex, max_iter: int, scale, tol=1e-11, _debug=False):
     """See the module docstring. ``tol`` is the support-gap tolerance relative to ``scale``."""
     NV = 5 + max_iter
     NF = 2 * NV
@@ -143,6 +143,8 @@ def epa(support_m, simp: Simplex, max_iter: int, scale, tol=1e-11):
 
     state = (V, F, fvalid, nv0.astype(jnp.int32), jnp.asarray(False), jnp.asarray(0, jnp.int32))
     V, F, fvalid, nv, done, it = jax.lax.while_loop(cond, body, state)
+    if _debug:
+        return V, F, fvalid, nv
     nu, dist, good = _face_geometry(V.w, F, fvalid, scale)
     f = jnp.argmin(jnp.where(good, dist, jnp.inf))
     idx = F[f]

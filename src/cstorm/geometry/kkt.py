@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from ..spatial import safe_norm
-from .support import core_of, support_keyed
+from .support import core_of, support, support_keyed
 
 SEP, PEN_Z, PEN_FACE, FIXED = 0, 1, 2, 3
 
@@ -100,21 +100,78 @@ def _pinv_solve(J, r):
     return jnp.linalg.pinv(J, rtol=1e-11) @ r
 
 
+def merge_duplicates(x, theta, keys: Keys):
+    """Merge active pairs whose re-evaluated support points coincide (a cylinder's
+    followed points, a segment's repeated end): keep the first, add the weights. Returns
+    ``(x, keys)`` with a smaller mask, so that weights in [0, 1] mean a valid point."""
+    A, B = support_pairs(x[4:], theta, keys)
+    tol = 1e-12 * jax.lax.rsqrt(keys.inv_s2)
+    lam, mask = x[:3], keys.mask
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        same = mask[i] & mask[j] & (safe_norm(A[i] - A[j]) + safe_norm(B[i] - B[j]) <= tol)
+        lam = lam.at[i].add(jnp.where(same, lam[j], 0.0)).at[j].set(jnp.where(same, 0.0, lam[j]))
+        mask = mask.at[j].set(mask[j] & ~same)
+    return x.at[:3].set(lam), keys._replace(mask=mask)
+
+
+def _member(core, T, pts, lam, mask, tol):
+    """Whether ``sum lam_i pts_i`` (world) lies in the core: geometrically for a
+    cylinder (whose flat cap may be spanned by rim points with weights outside [0, 1]),
+    else by the weights of the distinct points being >= 0."""
+    p = lam @ pts
+    if core.kind == "cylinder":
+        r, hl = core.params
+        q = T[:3, :3].T @ (p - T[:3, 3])
+        return (safe_norm(q[:2]) <= r + tol) & (jnp.abs(q[2]) <= hl + tol)
+    same = safe_norm(pts[:, None, :] - pts[None, :, :]) <= tol
+    w = (same & mask[None, :]) @ lam
+    return jnp.all(jnp.where(mask, w >= -1e-9, True))
+
+
 def newton_polish(x, theta, keys: Keys, steps: int):
-    """``steps`` Newton steps on the residual (for curved cores, whose GJK/EPA solutions
-    are approximate); a step is kept only if it reduces the residual norm and leaves the
-    weights in [-1e-9, 1 + 1e-9]."""
-    F = lambda x_: residual(x_, theta, keys)  # noqa: E731
-    for _ in range(steps):
-        r = F(x)
-        J = jax.jacfwd(F)(x)
-        x_new = x - _pinv_solve(J, r)
-        x_new = x_new.at[4:].set(_unit(x_new[4:]))
-        r_new = F(x_new)
-        lam = x_new[:3]
-        ok = (r_new @ r_new < r @ r) & jnp.all(lam >= -1e-9) & jnp.all(lam <= 1.0 + 1e-9)
-        x = jnp.where(ok, x_new, x)
-    return x
+    """Polish an approximate solution (curved cores: GJK/EPA converge only linearly
+    there) by ``steps`` Newton steps on the residual. A result is accepted if its residual
+    is below 1e-10, its witnesses are support points of the true shapes along -n / n
+    (certificate), they lie in their shapes, and n stayed within 60 deg of the input;
+    if the first attempt fails, pairs with negative weight are dropped (contact on a
+    lower-dimensional feature) and it is polished again; if that fails too the input is
+    returned unchanged. Returns ``(x, keys)``."""
+    shape_a, Ta, shape_b, Tb = theta
+    core_a, _ = core_of(shape_a)
+    core_b, _ = core_of(shape_b)
+    scale = jax.lax.rsqrt(keys.inv_s2)
+    tol = 1e-9 * scale
+
+    def run(x, keys):
+        F = lambda x_: residual(x_, theta, keys)  # noqa: E731
+        for _ in range(steps):
+            x = x - _pinv_solve(jax.jacfwd(F)(x), F(x))
+            x = x.at[4:].set(_unit(x[4:]))
+        return x
+
+    def accept(x, keys):
+        r = residual(x, theta, keys)
+        lam, n = x[:3], x[4:]
+        A, B = support_pairs(n, theta, keys)
+        p_a, p_b = lam @ A, lam @ B
+        s_a = Ta[:3, :3] @ support(core_a, Ta[:3, :3].T @ (-n)) + Ta[:3, 3]
+        s_b = Tb[:3, :3] @ support(core_b, Tb[:3, :3].T @ n) + Tb[:3, 3]
+        cert = (jnp.abs(n @ (s_a - p_a)) < tol) & (jnp.abs(n @ (s_b - p_b)) < tol)
+        inside = _member(core_a, Ta, A, lam, keys.mask, tol) & _member(core_b, Tb, B, lam, keys.mask, tol)
+        return (jnp.max(jnp.abs(r)) < 1e-10) & cert & inside & (n @ keys.n0 > 0.5)
+
+    def sel(c, a, b):
+        return jax.tree_util.tree_map(lambda p, q: jnp.where(c, p, q), a, b)
+
+    x1 = run(x, keys)
+    ok1 = accept(x1, keys)
+    neg = keys.mask & (x1[:3] < -1e-12)
+    keys2 = keys._replace(mask=keys.mask & ~neg)
+    lam2 = jnp.where(neg, 0.0, jnp.clip(x1[:3], 0.0, 1.0))
+    lam2 = lam2 / jnp.maximum(jnp.sum(lam2), 1e-300)
+    x2 = run(jnp.concatenate([lam2, x1[3:]]), keys2)
+    ok2 = jnp.any(neg) & accept(x2, keys2)
+    return sel(ok1, (x1, keys), sel(ok2, (x2, keys2), (x, keys)))
 
 
 def implicit_tangent(x, theta, keys: Keys, t_theta):

@@ -44,62 +44,66 @@ _EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 _FACES = ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3))
 
 
+_EI = jnp.array(_EDGES)
+_FI = jnp.array(_FACES)
+
+
 def closest_on_simplex(W, mask):
     """Closest point to the origin of the convex hull of the active rows of W (4, 3).
 
-    Returns ``(v (3,), lam (4,), sub_mask (4,))``: ``sub_mask`` marks the smallest face
-    whose relative interior holds ``v`` (the reduced simplex), ``lam`` its weights.
+    Enumerates the 4 vertices, 6 edges, 4 triangles and the tetrahedron (vectorized),
+    keeps the candidates whose projection of the origin lies in their relative interior
+    and takes the nearest (the lowest-dimensional on exact ties). Returns ``(v (3,),
+    lam (4,), sub_mask (4,))``: ``sub_mask`` marks that smallest face (the reduced
+    simplex), ``lam`` its weights.
     """
     dt = W.dtype
-    cands_lam, cands_d2 = [], []
     inf = jnp.asarray(jnp.inf, dt)
     scale2 = jnp.max(jnp.sum(W * W, axis=-1)) + jnp.asarray(1e-300, dt)
+    eye4 = jnp.eye(4, dtype=dt)
     # vertices
-    for i in range(4):
-        lam = jnp.zeros(4, dt).at[i].set(1.0)
-        cands_lam.append(lam)
-        cands_d2.append(jnp.where(mask[i], W[i] @ W[i], inf))
-    # edges
-    for i, j in _EDGES:
-        e = W[j] - W[i]
-        ee = e @ e
-        ok = mask[i] & mask[j] & (ee > 1e-24 * scale2)
-        t = -(W[i] @ e) / jnp.where(ok, ee, 1.0)
-        ok = ok & (t > 0.0) & (t < 1.0)
-        lam = jnp.zeros(4, dt).at[i].set(1.0 - t).at[j].set(t)
-        p = W[i] + t * e
-        cands_lam.append(lam)
-        cands_d2.append(jnp.where(ok, p @ p, inf))
-    # triangles
-    for i, j, k in _FACES:
-        e1, e2 = W[j] - W[i], W[k] - W[i]
-        a11, a12, a22 = e1 @ e1, e1 @ e2, e2 @ e2
-        b1, b2 = -(e1 @ W[i]), -(e2 @ W[i])
-        det = a11 * a22 - a12 * a12
-        ok = mask[i] & mask[j] & mask[k] & (det > 1e-20 * a11 * a22) & (det > 0.0)
-        sdet = jnp.where(ok, det, 1.0)
-        lj = (b1 * a22 - b2 * a12) / sdet
-        lk = (a11 * b2 - a12 * b1) / sdet
-        li = 1.0 - lj - lk
-        ok = ok & (li > 0.0) & (lj > 0.0) & (lk > 0.0)
-        lam = jnp.zeros(4, dt).at[i].set(li).at[j].set(lj).at[k].set(lk)
-        p = W[i] + lj * e1 + lk * e2
-        cands_lam.append(lam)
-        cands_d2.append(jnp.where(ok, p @ p, inf))
-    # tetrahedron: origin inside
-    E = jnp.stack([W[1] - W[0], W[2] - W[0], W[3] - W[0]], axis=1)
-    det = jnp.linalg.det(E)
-    norms = jnp.prod(jnp.sqrt(jnp.sum(E * E, axis=0)))
+    L_v = eye4
+    D_v = jnp.where(mask, jnp.sum(W * W, axis=-1), inf)
+    # edges (6)
+    Wi, Wj = W[_EI[:, 0]], W[_EI[:, 1]]
+    e = Wj - Wi
+    ee = jnp.sum(e * e, -1)
+    ok = mask[_EI[:, 0]] & mask[_EI[:, 1]] & (ee > 1e-24 * scale2)
+    t = -jnp.sum(Wi * e, -1) / jnp.where(ok, ee, 1.0)
+    ok = ok & (t > 0.0) & (t < 1.0)
+    L_e = (1.0 - t)[:, None] * eye4[_EI[:, 0]] + t[:, None] * eye4[_EI[:, 1]]
+    p = Wi + t[:, None] * e
+    D_e = jnp.where(ok, jnp.sum(p * p, -1), inf)
+    # triangles (4)
+    Wi, Wj, Wk = W[_FI[:, 0]], W[_FI[:, 1]], W[_FI[:, 2]]
+    e1, e2 = Wj - Wi, Wk - Wi
+    a11, a12, a22 = jnp.sum(e1 * e1, -1), jnp.sum(e1 * e2, -1), jnp.sum(e2 * e2, -1)
+    b1, b2 = -jnp.sum(e1 * Wi, -1), -jnp.sum(e2 * Wi, -1)
+    det = a11 * a22 - a12 * a12
+    ok = mask[_FI[:, 0]] & mask[_FI[:, 1]] & mask[_FI[:, 2]] & (det > 1e-20 * a11 * a22) & (det > 0.0)
+    sdet = jnp.where(ok, det, 1.0)
+    lj = (b1 * a22 - b2 * a12) / sdet
+    lk = (a11 * b2 - a12 * b1) / sdet
+    li = 1.0 - lj - lk
+    ok = ok & (li > 0.0) & (lj > 0.0) & (lk > 0.0)
+    L_f = li[:, None] * eye4[_FI[:, 0]] + lj[:, None] * eye4[_FI[:, 1]] + lk[:, None] * eye4[_FI[:, 2]]
+    p = Wi + lj[:, None] * e1 + lk[:, None] * e2
+    D_f = jnp.where(ok, jnp.sum(p * p, -1), inf)
+    # tetrahedron: origin inside (Cramer's rule on the edge matrix)
+    E1, E2, E3 = W[1] - W[0], W[2] - W[0], W[3] - W[0]
+    c23, c31, c12 = jnp.cross(E2, E3), jnp.cross(E3, E1), jnp.cross(E1, E2)
+    det = E1 @ c23
+    norms = jnp.sqrt((E1 @ E1) * (E2 @ E2) * (E3 @ E3))
     ok = jnp.all(mask) & (jnp.abs(det) > 1e-14 * norms)
-    Es = jnp.where(ok, E, jnp.eye(3, dtype=dt))
-    x = jnp.linalg.solve(Es, -W[0])
+    sdet = jnp.where(ok, det, 1.0)
+    x = -jnp.stack([W[0] @ c23, W[0] @ c31, W[0] @ c12]) / sdet
     l0 = 1.0 - jnp.sum(x)
     ok = ok & jnp.all(x >= 0.0) & (l0 >= 0.0)
-    cands_lam.append(jnp.concatenate([l0[None], x]))
-    cands_d2.append(jnp.where(ok, jnp.zeros((), dt), inf))
+    L_t = jnp.concatenate([l0[None], x])[None]
+    D_t = jnp.where(ok, jnp.zeros((1,), dt), inf)
 
-    L = jnp.stack(cands_lam)
-    D2 = jnp.stack(cands_d2)
+    L = jnp.concatenate([L_v, L_e, L_f, L_t])
+    D2 = jnp.concatenate([D_v, D_e, D_f, D_t])
     best = jnp.argmin(D2)
     lam = L[best]
     sub = lam > 0.0

@@ -144,10 +144,12 @@ def newton_polish(x, theta, keys: Keys, steps: int):
 
     def run(x, keys):
         F = lambda x_: residual(x_, theta, keys)  # noqa: E731
-        for _ in range(steps):
+
+        def step(_, x):
             x = x - _pinv_solve(jax.jacfwd(F)(x), F(x))
-            x = x.at[4:].set(_unit(x[4:]))
-        return x
+            return x.at[4:].set(_unit(x[4:]))
+
+        return jax.lax.fori_loop(0, steps, step, x)
 
     def accept(x, keys):
         r = residual(x, theta, keys)

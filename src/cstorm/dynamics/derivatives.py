@@ -1,6 +1,41 @@
-"""Analytic derivatives of RNEA, ABA and the hybrid dynamics (the paper's ``dg``).
+"""Analytic derivatives of RNEA, ABA and the hybrid dynamics (the paper's ``dg``):
+Carpentier & Mansard 2018, "Analytical derivatives of rigid body dynamics algorithms"
+(RSS), world-frame form, extended to world-fixed external wrenches and to the hybrid
+partition (Featherstone RBDA 9.2; Sohl & Bobrow 2001).
 
-(placeholder: dispatches to the autodiff reference until the analytic algorithms land)
+    rnea_derivatives(model, q, v, a, f_ext=None)   -> (tau, dq, dv, da, df_ext)
+    aba_derivatives(model, q, v, tau, f_ext=None)  -> (a, dq, dv, dtau, df_ext)
+    hybrid_dynamics_derivatives(model, q, v, a_active, tau_passive, active, f_ext=None)
+        -> (y, dq, dv, da_active, dtau_passive, df_ext)
+
+Shapes: q (nq,), v/a/tau (nv,), f_ext (n_bodies, 6) world wrenches ``[torque about the
+world origin; force]`` (None: zero; df_ext is still returned). ``dq`` is always w.r.t. a
+tangent perturbation ``integrate(model, q, dq)`` (body-frame increments for free and
+ball joints), so it is (nv, nv). ``y`` holds tau_active in the active rows and a_passive
+in the passive rows (v order). Each function takes ``method="autodiff"`` to use the
+jacfwd reference of `derivatives_ad` instead.
+
+Algorithm.
+1. `_kinematics`: world placements, per-joint world motion subspaces ``J_i = oX_i S_i``,
+   body twists ``ov``, world inertias ``oI``, momenta ``h``, and the composite (subtree)
+   inertias ``Ycrb`` and their velocity variations ``doYcrb = sum (ov x* oI - oI ov x
+   + B(h))`` (``B(h) x = x x* h``).
+2. `_dynamics`: world accelerations ``oa`` (gravity as the world's acceleration),
+   subtree forces ``F`` (external wrenches subtracted), ``tau = J^T F + armature a``.
+3. `_rnea_partials`: dtau/dq, dtau/dv and M as masked dense products of stacked world
+   columns (formulas in its docstring). Pinocchio's external forces are body-fixed; ours
+   are fixed in the world, which adds ``J x* Fext`` terms to dtau/dq.
+4. Hybrid layer (`_hybrid_derivatives`): ``a_p`` from ``M_pp a_p = tau_p - rnea_p(q, v,
+   [a_a; 0])``, then differentiate ``rnea(q, v, [a_a; a_p], f) = [tau_a; tau_p]``:
+   ``d a_p = -M_pp^-1 (d rnea_p)``, ``d tau_a = d rnea_a + M_ap d a_p``. ABA is the
+   all-passive case (``dA/dx = -M^-1 dRNEA/dx``, ``dA/dtau = M^-1``), RNEA the all-active one.
+
+Cost: O(n d) per-joint 6-vector work plus O(nv^2) masked products for the partials;
+an O(n_p^3) Cholesky-based inverse of M_pp and O(nv^2 n_p) products for the hybrid/ABA
+rows. df_ext is accumulated down the tree in O(nv^2).
+
+Everything is unrolled over the static tree with fixed-size arrays, for `jit` and `vmap`;
+the functions are themselves differentiable by JAX (second derivatives).
 """
 
 from __future__ import annotations
@@ -117,7 +152,9 @@ def _kinematics(model, q, v, f_ext):
             dAdv.append(sp.cross_motion(ovi + ov[par], Ji))
         c = sp.mv(oR[i], model.com[i]) + op[i]
         Ic = sp.mm(sp.mm(oR[i], model.inertia[i]), oR[i].T)
-        oIi = sp.spatial_inertia(model.mass[i], c, Ic)
+        C = sp.skew(c)
+        mi = model.mass[i]
+        oIi = jnp.block([[Ic + mi * sp.mm(C, C.T), mi * C], [mi * C.T, mi * jnp.eye(3, dtype=C.dtype)]])
         hi = sp.mv(oIi, ovi)
         X = sp.mm(oIi, sp.ad(ovi))
         J.append(Ji), ov.append(ovi), vJ.append(vJi), oI.append(oIi), h.append(hi)
@@ -155,151 +192,190 @@ def _dynamics(model, kin, a, f_ext):
     return oa, F, tau
 
 
-def _mass_matrix(model, kin):
-    """M (nv, nv) from the world Jacobian columns and composite inertias:
-    ``M_jk = J_j^T Ycrb_k J_k`` for j an ancestor of k (or k itself)."""
+def _tree_masks(model):
+    """Static structure. anc (nb, nb): anc[j, k] when body j is k or an ancestor of k.
+    Over DoFs (nv, nv), by the DoFs' joints: up (row joint is the column joint or an
+    ancestor of it), same (same joint), strict_up, strict_down = strict_up^T."""
     nb = model.n_bodies
-    A = [sp.mm(kin.Ycrb[k], kin.J[k]) for k in range(nb)]
-    blocks = [[None] * nb for _ in range(nb)]
+    anc = np.zeros((nb, nb), dtype=bool)
     for k in range(nb):
         j = k
         while j >= 0:
-            blk = sp.mm(kin.J[j].T, A[k])
-            blocks[j][k] = blk
-            if j != k:
-                blocks[k][j] = blk.T
+            anc[j, k] = True
             j = model.parents[j]
-    M = _assemble(model, blocks)
-    return M + jnp.diag(model.armature), A
+    dj = np.array(model.dof_joint(), dtype=int)
+    up = anc[np.ix_(dj, dj)]
+    same = dj[:, None] == dj[None, :]
+    return anc, dj, up, same, up & ~same, (up & ~same).T
 
 
-def _assemble(model, blocks):
-    """Dense (nv, nv) matrix from per-joint blocks (None = zero)."""
-    nb = model.n_bodies
-    dtype = next(b for row in blocks for b in row if b is not None).dtype
-    rows = []
-    for j in range(nb):
-        nj = model.joints[j].nv
-        rows.append(jnp.concatenate(
-            [blocks[j][k] if blocks[j][k] is not None else jnp.zeros((nj, model.joints[k].nv), dtype=dtype)
-             for k in range(nb)], axis=1))
-    return jnp.concatenate(rows, axis=0)
+def _rnea_partials(model, kin, oa, F, f_ext):
+    """M, dtau/dq (tangent) and dtau/dv (nv, nv) at the accelerations oa and subtree forces
+    F of `_dynamics` (Carpentier & Mansard 2018, world-frame form, with world-fixed external
+    wrenches), and the stacked world motion subspace Jc (6, nv).
 
-
-def _rnea_partials(model, kin, A, oa, F, f_ext):
-    """dtau/dq (tangent), dtau/dv (nv, nv) and dtau/df_ext (nv, nb, 6) at the
-    accelerations oa and subtree forces F of `_dynamics` (Carpentier & Mansard 2018,
-    world-frame form, with world-fixed external wrenches)."""
+    With per-DoF world columns (k: the column's joint, lambda(k) its parent)
+      J_k, dVdq_k = ov_lambda x J_k, dAdq_k = oa_lambda x J_k + ov_lambda x dVdq_k,
+      dAdv_k = (ov_k + ov_lambda) x J_k, and composite (subtree) Ycrb, doYcrb, forces F,
+      external wrenches Fext, G = F + Fext:
+    row j ancestor of or equal to column k (upper part):
+      dtau_j/dq_k = J_j^T (doYcrb_k dVdq_k + Ycrb_k dAdq_k + J_k x* (G_k if j != k else Fext_k))
+      dtau_j/dv_k = J_j^T (doYcrb_k J_k + Ycrb_k dAdv_k),  M_jk = J_j^T Ycrb_k J_k
+    row j strict descendant of column k (lower part):
+      dtau_j/dq_k = (Ycrb_j J_j)^T dAdq_k + (doYcrb_j^T J_j)^T dVdq_k - (J_j x* Fext_j)^T J_k
+      dtau_j/dv_k = (Ycrb_j J_j)^T dAdv_k + (doYcrb_j^T J_j)^T J_k
+    Each part is one dense product of stacked (6, nv) columns, masked by the static tree
+    structure: a few fused elementwise loops instead of many tiny products.
+    """
     nb = model.n_bodies
     par = model.parents
     J, Y, dY = kin.J, kin.Ycrb, kin.doYcrb
     a0 = gravity_acceleration(model)
-    dAdq, dFdq, dFdv, Bv, dFdq_anc, dFdq_own, E = [], [], [], [], [], [], []
+    dtype = J[0].dtype
+    _, _, up, same, sup, sdown = _tree_masks(model)
+    cols = {k: [] for k in ("dAdq", "dVdq", "dFdq", "dFdv", "A", "Bv", "XG", "XE")}
     for k in range(nb):
         p = par[k]
         if p < 0:
+            dVdq_k = jnp.zeros_like(J[k])
             dAdq_k = sp.cross_motion(a0, J[k])
             dFdq_k = sp.mm(Y[k], dAdq_k)
         else:
-            dAdq_k = sp.cross_motion(oa[p], J[k]) + sp.cross_motion(kin.ov[p], kin.dVdq[k])
-            dFdq_k = sp.mm(dY[k], kin.dVdq[k]) + sp.mm(Y[k], dAdq_k)
-        dAdq.append(dAdq_k), dFdq.append(dFdq_k)
-        dFdv.append(sp.mm(dY[k], J[k]) + sp.mm(Y[k], kin.dAdv[k]))
-        Bv.append(sp.mm(dY[k].T, J[k]))
+            dVdq_k = kin.dVdq[k]
+            dAdq_k = sp.cross_motion(oa[p], J[k]) + sp.cross_motion(kin.ov[p], dVdq_k)
+            dFdq_k = sp.mm(dY[k], dVdq_k) + sp.mm(Y[k], dAdq_k)
+        cols["dAdq"].append(dAdq_k), cols["dVdq"].append(dVdq_k), cols["dFdq"].append(dFdq_k)
+        cols["dFdv"].append(sp.mm(dY[k], J[k]) + sp.mm(Y[k], kin.dAdv[k]))
+        cols["A"].append(sp.mm(Y[k], J[k]))
+        cols["Bv"].append(sp.mm(dY[k].T, J[k]))
+        G = F[k] if f_ext is None else F[k] + kin.Fext[k]
+        cols["XG"].append(_cross_force_cols(J[k], G))
         if f_ext is not None:
-            G = F[k] + kin.Fext[k]
-            BF = _cross_force_cols(J[k], kin.Fext[k])  # B(Fext) J;  B(h)^T = -B(h)
-            dFdq_anc.append(dFdq_k + _cross_force_cols(J[k], G))
-            dFdq_own.append(dFdq_k + BF)
-            E.append(-BF)
-        else:
-            dFdq_anc.append(dFdq_k + _cross_force_cols(J[k], F[k]))
-            dFdq_own.append(dFdq_k)
-            E.append(None)
-    bq = [[None] * nb for _ in range(nb)]
-    bv = [[None] * nb for _ in range(nb)]
-    for k in range(nb):
-        # rows of k and of its ancestors j, column k
-        bq[k][k] = sp.mm(J[k].T, dFdq_own[k])
-        bv[k][k] = sp.mm(J[k].T, dFdv[k])
-        j = par[k]
-        while j >= 0:
-            bq[j][k] = sp.mm(J[j].T, dFdq_anc[k])
-            bv[j][k] = sp.mm(J[j].T, dFdv[k])
-            # row k (descendant), column j (ancestor)
-            lq = sp.mm(A[k].T, dAdq[j]) + (sp.mm(Bv[k].T, kin.dVdq[j]) if kin.dVdq[j] is not None else 0.0)
-            if E[k] is not None:
-                lq = lq + sp.mm(E[k].T, J[j])
-            bq[k][j] = lq
-            bv[k][j] = sp.mm(A[k].T, kin.dAdv[j]) + sp.mm(Bv[k].T, J[j])
-            j = par[j]
-    dq = _assemble(model, bq)
-    dv = _assemble(model, bv)
-    # dtau_j / df_ext_b = -J_j^T for b in the subtree of j
-    sub = np.zeros((nb, nb))
-    for b in range(nb):
-        j = b
-        while j >= 0:
-            sub[j, b] = 1.0
-            j = par[j]
-    df = jnp.concatenate([-(jnp.asarray(sub[j])[None, :, None] * J[j].T[:, None, :]) for j in range(nb)], axis=0)
-    return dq, dv, df
+            cols["XE"].append(_cross_force_cols(J[k], kin.Fext[k]))
+    C = {k: jnp.concatenate(v, axis=1) for k, v in cols.items() if v}
+    C["dAdv"] = jnp.concatenate(kin.dAdv, axis=1)
+    Jc = jnp.concatenate(J, axis=1)
+    JT = Jc.T
+    mask = lambda m: jnp.asarray(m, dtype=dtype)
+    # mass matrix
+    U = sp.mm(JT, C["A"])
+    M = mask(up) * U + (mask(sup) * U).T + jnp.diag(model.armature)
+    # dtau/dq
+    dq_up = sp.mm(JT, C["dFdq"])
+    dq = mask(up) * dq_up + mask(sup) * sp.mm(JT, C["XG"])
+    if f_ext is None:
+        low = sp.mm(jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"]]))
+    else:
+        dq = dq + mask(same) * sp.mm(JT, C["XE"])
+        low = sp.mm(jnp.concatenate([C["A"], C["Bv"], -C["XE"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"], Jc]))
+    dq = dq + mask(sdown) * low
+    # dtau/dv
+    dv = mask(up) * sp.mm(JT, C["dFdv"]) + mask(sdown) * sp.mm(
+        jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdv"], Jc]))
+    return M, dq, dv, Jc
+
+
+def _spd_inverse(A):
+    """Inverse of a symmetric positive definite matrix (n, n): Cholesky ``A = L L^T``,
+    ``W = L^-1`` by a triangular solve, ``A^-1 = W^T W``. (Unrolled elementwise versions
+    were 4-8x slower under `vmap` on CPU for n >= 18.)"""
+    n = A.shape[0]
+    if n == 1:
+        return 1.0 / A
+    L = jnp.linalg.cholesky(A)
+    W = jax.scipy.linalg.solve_triangular(L, jnp.eye(n, dtype=A.dtype), lower=True)
+    return W.T @ W
 
 
 # ============================================================================ hybrid layer
 def _rows(ia, ip, top, bottom):
     """Interleave the active-row block ``top`` and passive-row block ``bottom`` in v order."""
+    if not len(ip):
+        return top
+    if not len(ia):
+        return bottom
     perm = np.argsort(np.concatenate([ia, ip]), kind="stable")
-    parts = [x for x in (top, bottom) if x.shape[0]]
-    return jnp.concatenate(parts, axis=0)[perm]
+    return jnp.concatenate([top, bottom], axis=0)[perm]
+
+
+def _take(X, idx, axis=0):
+    """X restricted to the static indices idx along axis (a slice when contiguous)."""
+    idx = np.asarray(idx)
+    if len(idx) == X.shape[axis] and np.all(idx == np.arange(len(idx))):
+        return X
+    if len(idx) and np.all(np.diff(idx) == 1):
+        return jax.lax.slice_in_dim(X, int(idx[0]), int(idx[-1]) + 1, axis=axis)
+    return jnp.take(X, jnp.asarray(idx), axis=axis)
 
 
 def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
+    """Differentiate the identity ``rnea(q, v, [a_a; a_p], f_ext) = [tau_a; tau_p]``.
+
+    With R = rnea and a residual perturbation dR (any of dR/dq, dR/dv, dR/df_ext, and
+    M[:, a] for da_active), the passive rows give ``d a_p = -M_pp^-1 dR_p`` and the active
+    rows ``d tau_a = dR_a + M_ap d a_p``: ``dy = S dR`` with ``S[:, a] = I[:, a]`` and
+    ``S[:, p] = Sp = [-M_ap M_pp^-1 ; -M_pp^-1]`` (rows a; p); ``dy/dtau_p = -Sp``.
+    dR/df_ext_b = -J_j^T on the DoFs j supporting body b, so ``dy/df_ext_b`` is
+    accumulated down the tree: ``Y_b = Y_parent(b) - S[:, dofs(b)] J_b^T``.
+    """
     act = np.array(active, dtype=bool)
     ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
     nv, nb = model.nv, model.n_bodies
     dtype = jnp.result_type(v, a_active, tau_passive)
     kin = _kinematics(model, q, v, f_ext)
-    M, A = _mass_matrix(model, kin)
-    a = jnp.zeros(nv, dtype=dtype).at[ia].set(a_active)
+    a = jnp.zeros(nv, dtype=dtype).at[ia].set(a_active) if len(ip) else a_active
+    M0 = None
     if len(ip):
         # passive accelerations from M_pp a_p = tau_p - rnea_p(q, v, [a_a; 0], f_ext)
         _, _, tau0 = _dynamics(model, kin, a, f_ext)
-        Mpp = M[np.ix_(ip, ip)]
-        L = jnp.linalg.cholesky(Mpp)
-        solve = lambda B: jax.scipy.linalg.cho_solve((L, True), B)
-        a_p = solve(tau_passive - tau0[ip])
-        a = a.at[ip].set(a_p)
+        M0 = _mass_only(model, kin)
+        Minv = _spd_inverse(_take(_take(M0, ip, 0), ip, 1))
+        a_p = sp.mv(Minv, tau_passive - _take(tau0, ip))
+        a = a + jnp.zeros(nv, dtype=dtype).at[ip].set(a_p)
     oa, F, tau = _dynamics(model, kin, a, f_ext)
-    dq, dv, df = _rnea_partials(model, kin, A, oa, F, f_ext)
+    M, dq, dv, Jc = _rnea_partials(model, kin, oa, F, f_ext)
+    anc, dj, *_ = _tree_masks(model)
     if not len(ip):
+        df = -(jnp.asarray(anc[dj], dtype=dtype)[:, :, None] * Jc.T[:, None, :])
         return HybridDerivatives(tau, dq, dv, M, jnp.zeros((nv, 0), dtype=dtype), df)
-    # differentiate rnea(q, v, [a_a; a_p], f) = [tau_a; tau_p]:
-    #   passive rows: d a_p = M_pp^-1 (d tau_p - d rnea_p - M_pa d a_a)
-    #   active rows:  d tau_a = d rnea_a + M_aa d a_a + M_ap d a_p
-    npas, nact = len(ip), len(ia)
-    rhs = jnp.concatenate([dq[ip], dv[ip], df[ip].reshape(npas, nb * 6), M[np.ix_(ip, ia)],
-                           jnp.eye(npas, dtype=dtype)], axis=1)
-    X = solve(rhs)
-    o = np.cumsum([0, nv, nv, nb * 6, nact, npas])
-    Pq, Pv, Pf, Pa, Pt = (X[:, o[i]: o[i + 1]] for i in range(5))
-    Pq, Pv, Pf, Pa = -Pq, -Pv, -Pf, -Pa
-    Pf = Pf.reshape(npas, nb, 6)
-    if nact:
-        Map = M[np.ix_(ia, ip)]
-        Aq = dq[ia] + Map @ Pq
-        Av = dv[ia] + Map @ Pv
-        Af = df[ia] + jnp.einsum("ij,jbk->ibk", Map, Pf)
-        Aa = M[np.ix_(ia, ia)] + Map @ Pa
-        At = Map @ Pt
+    if len(ia):
+        K = _take(_take(M, ia, 0), ip, 1) @ Minv
+        Sp = _rows(ia, ip, -K, -Minv)
     else:
-        Aq = Av = jnp.zeros((0, nv), dtype=dtype)
-        Af = jnp.zeros((0, nb, 6), dtype=dtype)
-        Aa = jnp.zeros((0, 0), dtype=dtype)
-        At = jnp.zeros((0, npas), dtype=dtype)
-    y = _rows(ia, ip, tau[ia], a_p)
-    return HybridDerivatives(y, _rows(ia, ip, Aq, Pq), _rows(ia, ip, Av, Pv), _rows(ia, ip, Aa, Pa),
-                             _rows(ia, ip, At, Pt), _rows(ia, ip, Af, Pf))
+        Sp = -Minv
+    amask = jnp.asarray(act, dtype=dtype)[:, None]
+
+    def S_times(X):  # S @ X for X (nv, c)
+        out = Sp @ _take(X, ip)
+        return out + amask * X if len(ia) else out
+
+    y = _rows(ia, ip, _take(tau, ia), a_p)
+    Dq, Dv = S_times(dq), S_times(dv)
+    Da = S_times(_take(M, ia, 1)) if len(ia) else jnp.zeros((nv, 0), dtype=dtype)
+    # external wrenches, accumulated down the tree
+    pos = np.full(nv, -1)
+    pos[ip] = np.arange(len(ip))
+    Yf = [None] * nb
+    for b in range(nb):
+        s, n = model.v_starts[b], model.joints[b].nv
+        Scols = []
+        for r in range(s, s + n):
+            Scols.append(Sp[:, pos[r]: pos[r] + 1] if not act[r] else jnp.asarray(np.eye(nv)[:, r: r + 1], dtype=dtype))
+        Sb = jnp.concatenate(Scols, axis=1)
+        Yb = -sp.mm(Sb, Jc[:, s: s + n].T)
+        Yf[b] = Yb if model.parents[b] < 0 else Yf[model.parents[b]] + Yb
+    Df = jnp.stack(Yf, axis=1)
+    return HybridDerivatives(y, Dq, Dv, Da, -Sp, Df)
+
+
+def _mass_only(model, kin):
+    """M (nv, nv) from the world Jacobian columns and composite inertias."""
+    _, _, up, _, sup, _ = _tree_masks(model)
+    Jc = jnp.concatenate(kin.J, axis=1)
+    A = jnp.concatenate([sp.mm(kin.Ycrb[k], kin.J[k]) for k in range(model.n_bodies)], axis=1)
+    U = sp.mm(Jc.T, A)
+    dtype = U.dtype
+    return jnp.asarray(up, dtype=dtype) * U + (jnp.asarray(sup, dtype=dtype) * U).T + jnp.diag(model.armature)
 
 
 # ============================================================================ public API

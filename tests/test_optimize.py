@@ -16,6 +16,7 @@ import jax
 
 import cstorm as cs
 from cstorm import examples
+from cstorm.examples.acrobot import acrobot_model
 from cstorm.errors import ProblemError
 from cstorm.optimize import MotionProblem, MotionSequence, check_gradients, load_solution, solve, costs, constraints
 
@@ -134,7 +135,7 @@ def test_sequence_segments_chain(problem, solution):
 
 
 def test_problem_validation():
-    m = examples.acrobot_model()
+    m = acrobot_model()
     with pytest.raises(ProblemError, match="no joint named"):
         MotionProblem(m, ["wrist"], 1.0, 8, 0.1, np.zeros(2))
     with pytest.raises(ProblemError, match="unknown problem parameter"):
@@ -146,7 +147,7 @@ def test_float64_required():
     jax.config.update("jax_enable_x64", False)
     try:
         with pytest.raises(ProblemError, match="jax_enable_x64"):
-            MotionProblem(examples.acrobot_model(), ["elbow"], 1.0, 8, 0.1, np.zeros(2))
+            MotionProblem(acrobot_model(), ["elbow"], 1.0, 8, 0.1, np.zeros(2))
     finally:
         jax.config.update("jax_enable_x64", True)
 

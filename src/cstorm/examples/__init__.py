@@ -4,28 +4,64 @@
 ``cs.examples.names()`` lists them; ``cs.examples.acrobot(...)`` is the same function.
 Each returns a `MotionProblem` (or `MotionSequence`) whose ``solve_options`` hold the
 solve plan (continuation, staging) that makes ``cs.solve(problem)`` converge.
+
+Registration: every module of this package that defines ``EXAMPLES = {name: factory}``
+contributes its problems; modules are found with `pkgutil`, so adding an example is
+adding a module (no central list to edit).
 """
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+
 from ..errors import InputError
-from .acrobot import acrobot, acrobot_model
 
-_REGISTRY = {
-    "acrobot": acrobot,
-}
+_REGISTRY: dict | None = None
 
-__all__ = ["get", "names", "acrobot", "acrobot_model"]
+
+def _registry() -> dict:
+    global _REGISTRY
+    if _REGISTRY is None:
+        reg = {}
+        for info in pkgutil.iter_modules(__path__):
+            if info.name.startswith("_"):
+                continue
+            mod = importlib.import_module(f"{__name__}.{info.name}")
+            for name, fn in getattr(mod, "EXAMPLES", {}).items():
+                if name in reg:
+                    raise RuntimeError(f"example {name!r} registered twice ({mod.__name__})")
+                reg[name] = fn
+        _REGISTRY = reg
+        # cs.examples.<name> is the factory, even where a module has the same name
+        globals().update(reg)
+    return _REGISTRY
 
 
 def names() -> list:
     """Names of the shipped example problems."""
-    return sorted(_REGISTRY)
+    return sorted(_registry())
 
 
 def get(name: str):
     """The problem factory registered under ``name`` (call it to build the problem)."""
     try:
-        return _REGISTRY[name]
+        return _registry()[name]
     except KeyError:
         raise InputError(f"unknown example problem {name!r}; known: {', '.join(names())}") from None
+
+
+def __getattr__(name):  # cs.examples.acrobot(...), cs.examples.tumbler(...)
+    if name.startswith("__"):
+        raise AttributeError(name)
+    reg = _registry()
+    if name in reg:
+        return reg[name]
+    raise AttributeError(f"module 'cstorm.examples' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_registry()))
+
+
+_registry()

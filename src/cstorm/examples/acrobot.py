@@ -69,3 +69,6 @@ def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator
     if continuation:
         prob.solve_options["continuation"] = {"target": [np.pi * s for s in (0.25, 0.5, 0.75, 0.875, 1.0)]}
     return prob
+
+
+EXAMPLES = {"acrobot": acrobot}

@@ -105,6 +105,11 @@ class MotionProblem:
       segment: steps per checkpointed scan segment (default ~sqrt(N)).
       q_bound, v_bound: divergence bounds of the rollout.
       name: a label for displays and files.
+      success_criteria: optional problem-specific success criteria, checked after a
+        solve by `cstorm.report.evaluate_criteria` (and reported in ``summary.json`` by
+        ``cstorm solve``): a callable ``(solution) -> {name: {"value", "tol", "ok"}}`` or
+        a list of criterion specs (dicts, see `cstorm.report`). Also settable as an
+        attribute after construction.
 
     Attributes: ``model, layout, spline, n_steps, dt, t (grid), n_vars, n_eq, n_ineq,
     x0, solve_options`` (defaults merged into `solve`'s options, e.g. a continuation
@@ -114,10 +119,11 @@ class MotionProblem:
     def __init__(self, model, active, t_final, n_ctrl, dt, q0, v0=None, *, env=None, contact=None, contact_fn=None,
                  q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
                  constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
-                 jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion"):
+                 jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None):
         require_x64("MotionProblem")
         self.model = model
         self.name = str(name)
+        self.success_criteria = success_criteria
         names_given = tuple([active] if isinstance(active, str) else active)
         if not names_given:
             raise ProblemError("MotionProblem: at least one active joint is needed (the decision variables are "

@@ -20,9 +20,11 @@ __all__ = ["MotionSequence"]
 
 class MotionSequence:
     """``MotionSequence(segments)``: a list of `MotionProblem` on the same model (the same
-    joints, ``nq``, ``nv``). ``name`` labels displays and files."""
+    joints, ``nq``, ``nv``). ``name`` labels displays and files. ``success_criteria``
+    (optional, as for `MotionProblem`) are checked on the whole sequence's solution; each
+    segment's own criteria are checked on its segment solution."""
 
-    def __init__(self, segments, name="sequence"):
+    def __init__(self, segments, name="sequence", success_criteria=None):
         segments = list(segments)
         if not segments:
             raise ProblemError("MotionSequence: give at least one segment")
@@ -34,6 +36,7 @@ class MotionSequence:
                                    f"{list(s.model.joint_names)} vs {list(segments[0].model.joint_names)})")
         self.segments = segments
         self.name = str(name)
+        self.success_criteria = success_criteria
         self.solve_options = {}
 
     def __len__(self):

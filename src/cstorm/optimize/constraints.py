@@ -14,8 +14,9 @@ function per problem); switched-off ones are simply not passed to the solver.
 
 Ready-made: `JointLimits` (position and velocity limits from the model, sampled),
 `TorqueLimits` (motor torques, sampled), `TerminalState` (passive states or base pose at
-``t_final``, equality or bounds), `TerminalConstraint` and `PathConstraint` (user JAX
-callables).
+``t_final``, equality or bounds), `ContactDistance` (contact points clear of the
+obstacles in a time window, e.g. a flight phase), `TerminalConstraint` and
+`PathConstraint` (user JAX callables).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ import jax.numpy as jnp
 from ..errors import ProblemError
 from .costs import joint_error, resolve, _jsonable
 
-__all__ = ["Constraint", "JointLimits", "TorqueLimits", "TerminalState", "TerminalConstraint", "PathConstraint"]
+__all__ = ["Constraint", "JointLimits", "TorqueLimits", "TerminalState", "ContactDistance", "TerminalConstraint",
+           "PathConstraint"]
 
 
 class Constraint:
@@ -175,6 +177,72 @@ class TerminalState(Constraint):
     def describe(self):
         return {"type": "TerminalState", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
                 "kind": self.kind, "stage": self.stage}
+
+
+class ContactDistance(Constraint):
+    """Contact points clear of the obstacles: ``d_i(t) >= min_distance`` (m) for every
+    contact point ``i`` whose robot geom matches one of ``geoms`` (glob patterns, default
+    all points) at every constraint-grid sample with ``window[0] <= t <= window[1]`` (s;
+    default the whole motion). Inequalities: the values ``d_i(t) - min_distance``, shape
+    ``(n_samples_in_window * n_points,)``, sample-major. ``min_distance`` may name a
+    problem parameter (continuation can ramp it).
+
+    ``d`` is the signed distance of `cstorm.contact_forces` (per feature: capsule end
+    spheres, box corners, ...). With ``min_distance >= d_on`` of the contact parameters
+    the contact force is exactly zero in the window: a flight phase. Needs a problem with
+    ``env`` and ``contact``. Between samples the constraint is not enforced (the grid has
+    ``n_path_samples`` points)."""
+
+    kind = "ineq"
+
+    def __init__(self, min_distance, window=None, geoms=None, stage=0, name=None):
+        self.min_distance = min_distance
+        self.window = None if window is None else (float(window[0]), float(window[1]))
+        self.geoms = [geoms] if isinstance(geoms, str) else (None if geoms is None else list(geoms))
+        _set_common(self, "ineq", stage, name)
+
+    def check(self, problem):
+        import fnmatch
+
+        from ..contact import contact_labels
+
+        if problem.env is None:
+            raise ProblemError("ContactDistance: the problem has no environment (MotionProblem(env=..., contact=...))")
+        if self.window is not None:
+            a, b = self.window
+            if not (np.isfinite(a) and np.isfinite(b) and 0.0 <= a <= b <= problem.t_final):
+                raise ProblemError(f"ContactDistance: window must satisfy 0 <= start <= end <= t_final="
+                                   f"{problem.t_final:g} s, got {self.window}")
+        labels = contact_labels(problem.model, problem.env)
+        if self.geoms is None:
+            pts = list(range(len(labels)))
+        else:
+            pts = [i for i, lab in enumerate(labels) if any(fnmatch.fnmatchcase(lab[0], g) for g in self.geoms)]
+        if not pts:
+            raise ProblemError(f"ContactDistance: no contact point of geoms {self.geoms}; the contact points "
+                               f"belong to geoms {sorted({lab[0] for lab in labels})}")
+        self._pts = np.array(pts, int)
+
+    def values(self, ctx, end, samples):
+        p = ctx.problem
+        t = p.t[p.sample_idx]
+        if self.window is None:
+            rows = np.arange(len(t))
+        else:
+            rows = np.nonzero((t >= self.window[0] - 1e-12) & (t <= self.window[1] + 1e-12))[0]
+            if not len(rows):
+                raise ProblemError(f"ContactDistance: no constraint-grid sample lies in the window {self.window} s "
+                                   f"(samples every {t[1] - t[0]:.4g} s); widen it or raise n_path_samples")
+        d = samples["contact"].d[rows][:, self._pts]
+        return (d - resolve(self.min_distance, ctx.params)).ravel()
+
+    def label(self):
+        return self.name or "ContactDistance"
+
+    def describe(self):
+        return {"type": "ContactDistance", "min_distance": _jsonable(self.min_distance), "window": self.window,
+                "geoms": self.geoms, "stage": self.stage}
+
 
 
 class TerminalConstraint(Constraint):

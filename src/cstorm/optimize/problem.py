@@ -157,6 +157,7 @@ class MotionProblem:
         self.params = {k: np.asarray(v, dtype=float) for k, v in (params or {}).items()}
         self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
         self.constraints = list(constraints or [])
+        self.env, self.contact = env, contact  # before the terms' check(), which may read them
         for c in self.costs:
             if not isinstance(c, _costs.Cost):
                 raise ProblemError(f"MotionProblem: costs must be cost terms (cstorm.optimize.costs), got {c!r}")
@@ -171,7 +172,6 @@ class MotionProblem:
         self.jacobian_mode = jacobian
         self.segment = segment
         self.q_bound, self.v_bound = float(q_bound), float(v_bound)
-        self.env, self.contact = env, contact
         self._contact_fn = self._make_contact_fn(env, contact, contact_fn)
         # constraint grid: every `stride`-th step, both ends included
         stride = max(1, self.n_steps // max(1, int(n_path_samples)))
@@ -291,11 +291,7 @@ class MotionProblem:
                 val = c.terminal(ctx, end)
                 if val is not None:
                     f = f + val
-        idx = self.sample_idx
-        samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
-                       tau=tr["tau"][idx])
-        if tr.get("contact") is not None:
-            samples["contact"] = jax.tree_util.tree_map(lambda y: y[idx], tr["contact"])
+        samples = self._samples(tr)
         eq, inq = [], []
         for c in self.constraints:
             val = jnp.atleast_1d(c.values(ctx, end, samples)).ravel()
@@ -329,10 +325,17 @@ class MotionProblem:
         res, ctx = self._rollout(x, data, record=True)
         tr = res["traj"]
         end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
+        return [jnp.atleast_1d(c.values(ctx, end, self._samples(tr))).ravel() for c in self.constraints]
+
+    def _samples(self, tr):
+        """The trajectory on the constraint grid: dict ``t (S,)``, ``q, v, a, tau`` and,
+        with contact, ``contact`` (the per-point contact data at the samples)."""
         idx = self.sample_idx
         samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
                        tau=tr["tau"][idx])
-        return [jnp.atleast_1d(c.values(ctx, end, samples)).ravel() for c in self.constraints]
+        if tr.get("contact") is not None:
+            samples["contact"] = jax.tree_util.tree_map(lambda y: y[idx], tr["contact"])
+        return samples
 
     def constraint_masks(self, level=None):
         """Boolean masks over ``c_eq`` and ``c_in``: the constraints enforced at stage

@@ -92,39 +92,162 @@ def cmd_demo(args):
     return 0
 
 
-def cmd_solve(args):
-    """Solve a shipped example problem; write summary.json, solution.npz and a CSV."""
-    import numpy as np
+def _parse_set(items):
+    """``--set KEY=VALUE`` pairs -> dict (VALUE parsed as JSON when it is JSON, else a
+    string)."""
+    from .errors import InputError
 
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise InputError(f"--set {it!r}: expected KEY=VALUE (e.g. --set dt=0.02)")
+        k, v = it.split("=", 1)
+        try:
+            out[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k.strip()] = v
+    return out
+
+
+def resolve_problem(spec: str, kwargs=None, segment=None):
+    """``(problem, source)`` for a shipped example name or a TOML problem file path;
+    ``kwargs`` go to the example's factory; ``segment`` selects one segment of a
+    sequence (see `cstorm.report.select_segment`)."""
     import cstorm as cs
+    from .errors import InputError
+    from .report import problem_from_source
 
-    problem = cs.examples.get(args.problem)()
-    out = args.out or os.path.join("cstorm-out", args.problem)
+    if spec.lower().endswith(".toml") or (os.path.sep in spec and os.path.exists(spec)):
+        if not os.path.exists(spec):
+            raise InputError(f"problem file {spec!r} not found")
+        with open(spec, "rb") as f:
+            raw = f.read()
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise InputError(f"{spec}: not UTF-8 text: {e}") from None
+        source = dict(kind="toml", path=os.path.abspath(spec), text=text)
+        if kwargs:
+            source["overrides"] = dict(kwargs)
+    else:
+        if spec not in cs.examples.names():
+            raise InputError(f"unknown problem {spec!r}: not a shipped example ({', '.join(cs.examples.names())}) "
+                             "and not a .toml problem file")
+        source = dict(kind="example", name=spec, kwargs=dict(kwargs or {}))
+    if segment is not None:
+        source["segment"] = segment
+    key = json.dumps(source, sort_keys=True, default=str)
+    if key not in _PROBLEMS:
+        if len(_PROBLEMS) >= 8:
+            _PROBLEMS.pop(next(iter(_PROBLEMS)))
+        _PROBLEMS[key] = problem_from_source(source)
+    return _PROBLEMS[key], source
+
+
+# problems built by `resolve_problem` in this process, by source: calling `main` again for
+# the same problem (a notebook, the test-suite) reuses its compiled functions
+_PROBLEMS: dict = {}
+
+
+def cmd_solve(args):
+    """Solve a shipped example or a TOML problem file; write summary.json, solution.npz,
+    trajectory.csv, plots and an animation (see `cstorm.report.write_outputs`)."""
+    import cstorm as cs
+    from .errors import InputError
+    from .optimize.sequence import MotionSequence
+    from .report import write_outputs
+
+    problem, source = resolve_problem(args.problem, _parse_set(args.set), args.segment)
+    label = problem.name if args.segment is None else f"{source.get('name', problem.name)}-{problem.name}"
+    out = args.out or os.path.join("cstorm-out", label)
     os.makedirs(out, exist_ok=True)
-    sol = cs.solve(problem, method=args.method, max_iter=args.max_iter, verbose=not args.json,
-                   out=sys.stderr, checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None)
-    sol.save(os.path.join(out, "solution.npz"))
-    summary = sol.summary()
-    summary["provenance"] = dict(cstorm=cs.__version__, problem=args.problem, method=args.method,
-                                 max_iter=args.max_iter)
-    _write_json(os.path.join(out, "summary.json"), summary)
-    tr = sol.trajectory
-    if tr is not None and "t" in tr:
-        cols = [np.asarray(tr["t"])[:, None], np.asarray(tr["q"]), np.asarray(tr["v"])]
-        model = problem.model
-        header = ["t"] + [f"q_{n}" if model.joints[i].nq == 1 else f"q_{n}_{k}" for i, n in enumerate(model.joint_names)
-                          for k in range(model.joints[i].nq)]
-        header += [f"v_{n}" if model.joints[i].nv == 1 else f"v_{n}_{k}" for i, n in enumerate(model.joint_names)
-                   for k in range(model.joints[i].nv)]
-        tmp = os.path.join(out, ".trajectory.csv.tmp")
-        np.savetxt(tmp, np.concatenate(cols, axis=1), delimiter=",", header=",".join(header), comments="")
-        os.replace(tmp, os.path.join(out, "trajectory.csv"))
+    so = dict(getattr(problem, "solve_options", {}) or {})
+    method = args.method or so.get("method", "slsqp")
+    max_iter = args.max_iter if args.max_iter is not None else so.get("max_iter", 500)
+    kw = {k: so[k] for k in ("tol", "constraint_tol", "options") if k in so}
+    if args.tol is not None:
+        kw["tol"] = args.tol
+    if args.resume:
+        if isinstance(problem, MotionSequence):
+            raise InputError("--resume works for single problems; for a sequence use --segment NAME --resume")
+        ck = os.path.join(out, "checkpoint.npz")
+        if not os.path.exists(ck):
+            raise InputError(f"--resume: no checkpoint at {ck} (write one with --checkpoint)")
+        kw["resume"] = ck
+    log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    log(f"cstorm solve {args.problem}" + (f" --segment {args.segment}" if args.segment else "") +
+        f": {problem!r}; method {method}, max_iter {max_iter}; output {out}")
+    sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not args.json, out=sys.stderr,
+                   checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None, **kw)
+    log(f"solved in {sol.wall_time_s:.1f} s (compile {sol.compile_time_s:.1f} s): {sol.message}")
+    summary = write_outputs(problem, sol, out, source=source, check_fidelity=not args.no_fidelity,
+                            animation=not args.no_animation,
+                            extra_provenance=dict(command=["cstorm"] + list(args.argv or [])), log=log)
+    summary["out"] = os.path.abspath(out)
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"{args.problem}: {'success' if sol.success else 'FAILED'}: {sol.message}; cost {sol.cost:.6g}, "
-              f"violation {sol.constraint_violation:.2e}, {sol.iterations} iterations; wrote {out}", file=sys.stderr)
-    return 0 if sol.success else 1
+        fid = summary.get("fidelity") or {}
+        fl = ("fidelity ok" if fid.get("ok") else f"fidelity FLAGGED: {'; '.join(fid.get('flags', []))}") if fid \
+            else "fidelity not checked"
+        dev = ", ".join(f"{k} {fid[k]:.2g}" for k in ("position_m", "angle_deg") if fid.get(k) is not None)
+        failed = [k for k, v in summary["criteria"].items() if not v.get("ok")]
+        print(f"{summary['problem']}: {'success' if summary['success'] else 'FAILED'}: {summary['message']}\n"
+              f"  cost {summary['cost']:.6g}, violation {summary['constraint_violation']:.2e}, "
+              f"{summary['iterations']} iterations, {summary['wall_time_s']:.1f} s "
+              f"(compile {summary['compile_time_s']:.1f} s)\n"
+              f"  criteria: {len(summary['criteria']) - len(failed)}/{len(summary['criteria'])} ok"
+              + (f" (failed: {failed})" if failed else "") + f"; {fl}" + (f" ({dev})" if dev else "") +
+              f"\n  wrote {', '.join(summary['files'])} to {out}", file=sys.stderr)
+    return 0 if summary["success"] else 1
+
+
+def cmd_animate(args):
+    """Re-render plots and the animation from a saved solution (a directory holding
+    solution.npz, or the .npz itself), rebuilding the problem from the solution's
+    recorded source (a shipped example with its arguments, or the stored TOML text)."""
+    import numpy as np
+
+    import cstorm as cs
+    from .errors import InputError
+    from .report import problem_from_source, problem_segments, render, segment_solutions, write_csv
+    from .viz.motion import Motion
+
+    path = args.solution
+    npz = os.path.join(path, "solution.npz") if os.path.isdir(path) else path
+    if not os.path.exists(npz):
+        raise InputError(f"animate: no solution at {npz!r} (give a directory written by `cstorm solve` or its "
+                         "solution.npz)")
+    sol = cs.load_solution(npz)
+    info = sol.info or {}
+    source = info.get("source") or (info.get("provenance") or {}).get("source")
+    if source is None:
+        raise InputError(f"animate: {npz} does not record how to rebuild its problem (no 'source' in its metadata); "
+                         "solutions written by `cstorm solve` do")
+    problem = problem_from_source(source)
+    segs, sols = problem_segments(problem), segment_solutions(sol)
+    if len(sols) > len(segs) or any(p.model.nq != np.shape(s.trajectory["q"])[1] for p, s in zip(segs, sols)):
+        raise InputError(f"animate: the rebuilt problem {problem.name!r} does not match the saved solution "
+                         f"({len(segs)} segment(s), nq={segs[0].model.nq}; the solution has {len(sols)} segment(s), "
+                         f"q of shape {np.shape(sols[0].trajectory['q'])})")
+    stored = (info.get("provenance") or {}).get("problem_hash")
+    from .report import problem_hash
+    if stored and stored != problem_hash(problem) and not args.json:
+        print(f"cstorm animate: warning: the rebuilt problem's hash {problem_hash(problem)} differs from the saved "
+              f"one {stored} (the example or file changed since); drawing anyway", file=sys.stderr)
+    out = args.out or (path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path)))
+    os.makedirs(out, exist_ok=True)
+    motion = Motion.from_solution(problem, sol)
+    files = render(motion, out, animation=not args.no_animation)
+    if args.csv:
+        write_csv(os.path.join(out, "trajectory.csv"), motion)
+        files.append("trajectory.csv")
+    res = dict(success=True, problem=motion.name, out=os.path.abspath(out), files=sorted(files))
+    if args.json:
+        print(json.dumps(res))
+    else:
+        print(f"{motion.name}: wrote {', '.join(res['files'])} to {out}", file=sys.stderr)
+    return 0
 
 
 def cmd_check_gradients(args):
@@ -147,7 +270,7 @@ def _write_json(path, obj):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="cstorm", description="Optimal motions for robots that make and break contact.")
+    p = _Parser(prog="cstorm", description="Optimal motions for robots that make and break contact.")
     sub = p.add_subparsers(dest="cmd", required=True)
     pi = sub.add_parser("info", help="describe a robot model (shipped name, URDF or MJCF path)")
     pi.add_argument("model")
@@ -159,14 +282,37 @@ def build_parser():
     pd.add_argument("--t-final", type=float, default=3.0)
     pd.add_argument("--json", action="store_true")
     pd.set_defaults(fn=cmd_demo)
-    ps = sub.add_parser("solve", help="solve a shipped motion problem (e.g. acrobot)")
-    ps.add_argument("problem")
-    ps.add_argument("--out", default=None)
-    ps.add_argument("--method", choices=["slsqp", "ipopt"], default="slsqp")
-    ps.add_argument("--max-iter", type=int, default=500)
-    ps.add_argument("--checkpoint", action="store_true", help="write DIR/checkpoint.npz every iteration")
-    ps.add_argument("--json", action="store_true")
+    ps = sub.add_parser("solve", help="solve a shipped motion problem or a TOML problem file; write results",
+                        description="Solve PROBLEM (a shipped example name or a .toml problem file) and write "
+                                    "summary.json, solution.npz, trajectory.csv, PNG plots and animation.gif to "
+                                    "--out (default ./cstorm-out/<problem>). Exit 0: solved and every success "
+                                    "criterion met; 1: the solve failed; 2: bad input.")
+    ps.add_argument("problem", help="shipped example name (e.g. acrobot) or path to a .toml problem file")
+    ps.add_argument("--out", default=None, help="output directory (default ./cstorm-out/<problem>)")
+    ps.add_argument("--segment", default=None, metavar="NAME",
+                    help="solve only this segment of a sequence (name or 0-based index), from the segment's own "
+                         "nominal start state (its q0, v0)")
+    ps.add_argument("--method", choices=["slsqp", "ipopt"], default=None,
+                    help="solver (default: the problem's choice, else slsqp)")
+    ps.add_argument("--max-iter", type=int, default=None, help="iteration limit per stage (default: the problem's, "
+                                                               "else 500)")
+    ps.add_argument("--tol", type=float, default=None, help="optimality tolerance")
+    ps.add_argument("--checkpoint", action="store_true", help="write OUT/checkpoint.npz every iteration")
+    ps.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz (single problems)")
+    ps.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a shipped example's factory keyword argument (e.g. --set dt=0.02), or for a problem "
+                         "file a dotted key of the file (e.g. --set motion.dt=0.01); VALUE is read as JSON")
+    ps.add_argument("--no-animation", action="store_true", help="skip the animation")
+    ps.add_argument("--no-fidelity", action="store_true", help="skip the re-simulation fidelity check")
+    ps.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")
     ps.set_defaults(fn=cmd_solve)
+    pa = sub.add_parser("animate", help="re-render plots and the animation of a saved solution")
+    pa.add_argument("solution", help="a directory written by `cstorm solve`, or its solution.npz")
+    pa.add_argument("--out", default=None, help="output directory (default: the solution's)")
+    pa.add_argument("--no-animation", action="store_true", help="plots only")
+    pa.add_argument("--csv", action="store_true", help="also rewrite trajectory.csv")
+    pa.add_argument("--json", action="store_true")
+    pa.set_defaults(fn=cmd_animate)
     pg = sub.add_parser("check-gradients", help="exact vs finite-difference gradients of a shipped problem")
     pg.add_argument("problem")
     pg.add_argument("--json", action="store_true")
@@ -174,10 +320,30 @@ def build_parser():
     return p
 
 
+class _UsageError(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors raised (so ``main`` can answer them with exit code 2
+    and, under ``--json``, one JSON object) instead of exiting."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message}")
+
+
 def main(argv=None):
     from .errors import CstormError, DivergenceError
 
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except _UsageError as e:
+        if "--json" in argv:
+            print(json.dumps(dict(success=False, error="UsageError", message=str(e))))
+        print(f"usage error: {e} (see cstorm --help)", file=sys.stderr)
+        return 2
+    args.argv = argv
     _setup_jax()
     try:
         return args.fn(args)

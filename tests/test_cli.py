@@ -33,3 +33,165 @@ def test_demo_writes_files(tmp_path, capsys):
     assert summary["energy_drift_rel"] < 1e-6
     for f in ("pendulum_angles.png", "pendulum_strobe.png", "pendulum_trajectory.csv", "tumbler_info.txt"):
         assert os.path.getsize(tmp_path / f) > 100
+
+
+# ---------------------------------------------------------------------------------------
+# cstorm solve / animate on the shipped TOML example (one solve, shared by the tests;
+# later calls of `main` for the same problem reuse its compiled functions)
+# ---------------------------------------------------------------------------------------
+import contextlib
+import io
+
+import numpy as np
+
+import cstorm as cs
+from cstorm import cli
+
+EXAMPLE = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml")
+# fast settings: swing up to 3/4 pi instead of pi (two continuation stages, ~50 iterations)
+HALF = ["--set", "motion.params.target=2.356194490192345",
+        "--set", "solver.continuation.target=[1.5707963267948966, 2.356194490192345]"]
+
+
+def _run(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _one_json(stdout):
+    lines = [ln for ln in stdout.splitlines() if ln.strip()]
+    assert len(lines) == 1, stdout
+    obj = json.loads(lines[0])
+    assert isinstance(obj, dict)
+    return obj
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    out = tmp_path_factory.mktemp("acrobot_toml")
+    rc, stdout, stderr = _run(["solve", EXAMPLE, "--out", str(out), "--json", *HALF])
+    return rc, stdout, out
+
+
+def test_solve_toml_json_exit_0(solved):
+    rc, stdout, out = solved
+    s = _one_json(stdout)
+    assert rc == 0 and s["success"] is True and s["solver_success"] is True, s["message"]
+    assert s["problem"] == "acrobot_swing_up" and s["out"] == os.path.abspath(out)
+    assert set(s["criteria"]) == {"final_q[shoulder]", "final_v[shoulder]", "constraint_violation"}
+    assert all(c["ok"] for c in s["criteria"].values())
+    # fidelity: RK4 at dt/4 and DOP853 reproduce the final shoulder angle (measured 2e-4 deg)
+    f = s["fidelity"]
+    assert f["ok"] and f["flags"] == [] and f["angle_deg"] < 0.05 and f["position_m"] is None
+    assert [c["name"] for c in f["checks"]] == ["fine", "dop853"] and f["checks"][0]["dt"] == pytest.approx(0.005)
+
+
+def test_summary_and_files(solved):
+    rc, stdout, out = solved
+    files = sorted(os.listdir(out))
+    assert files == ["animation.gif", "joints.png", "paths.png", "solution.npz", "summary.json", "torques.png",
+                     "trajectory.csv"]
+    for f in files:
+        assert os.path.getsize(out / f) > 5000, f
+    s = json.loads((out / "summary.json").read_text())
+    for k in ("problem", "success", "message", "cost", "constraint_violation", "iterations", "wall_time_s",
+              "compile_time_s", "fidelity", "segments", "provenance", "criteria"):
+        assert k in s, k
+    assert s["cost"] > 0 and s["iterations"] > 10 and s["constraint_violation"] < 1e-6
+    seg = s["segments"]
+    assert len(seg) == 1 and {k: seg[0][k] for k in ("cost", "iterations")} == {k: s[k] for k in ("cost",
+                                                                                                  "iterations")}
+    pv = s["provenance"]
+    assert pv["cstorm_version"] == cs.__version__ and len(pv["problem_hash"]) == 16
+    assert pv["solver_options"]["method"] == "slsqp" and pv["solver_options"]["max_iter"] == 300
+    assert pv["source"]["kind"] == "toml" and pv["source"]["overrides"]["motion.params.target"] == pytest.approx(2.356,
+                                                                                                                abs=1e-3)
+    sol = cs.load_solution(out / "solution.npz")
+    assert sol.success and abs(sol.trajectory["q"][-1][0] - 3 * np.pi / 4) < 1e-3
+    assert sol.info["source"] == pv["source"]
+    header = (out / "trajectory.csv").read_text().splitlines()[0]
+    assert header == "t,segment,q_shoulder,q_elbow,v_shoulder,v_elbow,tau_shoulder,tau_elbow"
+
+
+def test_animate_rerenders_from_dir_and_npz(solved, tmp_path):
+    rc, stdout, out = solved
+    rc, stdout, _ = _run(["animate", str(out), "--out", str(tmp_path / "a"), "--json"])
+    r = _one_json(stdout)
+    assert rc == 0 and r["files"] == ["animation.gif", "joints.png", "paths.png", "torques.png"]
+    for f in r["files"]:
+        assert os.path.getsize(tmp_path / "a" / f) > 5000
+    rc, stdout, _ = _run(["animate", str(out / "solution.npz"), "--out", str(tmp_path / "b"), "--no-animation",
+                          "--csv", "--json"])
+    assert rc == 0 and _one_json(stdout)["files"] == ["joints.png", "paths.png", "torques.png", "trajectory.csv"]
+    assert (tmp_path / "b" / "trajectory.csv").read_text() == (out / "trajectory.csv").read_text()
+    # a solution that does not record its source cannot be re-rendered: exit 2, clear message
+    sol = cs.load_solution(out / "solution.npz")
+    sol.info = {}
+    sol.save(tmp_path / "bare.npz")
+    rc, stdout, _ = _run(["animate", str(tmp_path / "bare.npz"), "--json"])
+    assert rc == 2 and "rebuild" in _one_json(stdout)["message"]
+
+
+def test_failed_solve_exits_1(solved, tmp_path):
+    rc, stdout, _ = _run(["solve", EXAMPLE, *HALF, "--max-iter", "1", "--no-fidelity", "--no-animation",
+                          "--out", str(tmp_path), "--json"])
+    s = _one_json(stdout)
+    assert rc == 1 and s["success"] is False and s["iterations"] == 2  # one per continuation stage
+    assert s["fidelity"] is None and not s["criteria"]["final_q[shoulder]"]["ok"]
+    assert (tmp_path / "summary.json").exists() and not (tmp_path / "animation.gif").exists()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["solve", "no_such_problem"], ["unknown problem", "acrobot"]),
+    (["solve", "missing.toml"], ["missing.toml", "not found"]),
+    (["solve", "acrobot", "--max-iter", "many"], ["--max-iter", "invalid int"]),
+    (["solve", "acrobot", "--set", "t_final"], ["--set", "KEY=VALUE"]),
+    (["animate", "nowhere"], ["no solution"]),
+])
+def test_bad_input_exits_2_with_one_json_object(argv, words):
+    rc, stdout, stderr = _run(argv + ["--json"])
+    r = _one_json(stdout)
+    assert rc == 2 and r["success"] is False
+    for w in words:
+        assert w in r["message"], r["message"]
+    assert "error" in stderr
+
+
+def test_bad_problem_file_names_file_table_and_key(tmp_path):
+    text = open(EXAMPLE).read().replace("t_final = 3.0", "t_final = -3.0").replace(
+        'file = "acrobot.urdf"', f'file = "{os.path.abspath(os.path.join(os.path.dirname(EXAMPLE), "acrobot.urdf"))}"')
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    rc, stdout, _ = _run(["solve", str(bad), "--json"])
+    assert rc == 2 and _one_json(stdout)["message"] == f"{bad}: [motion] t_final: must be > 0, got -3.0"
+
+
+def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
+    """A two-segment sequence of the (compiled) acrobot problem, registered as an example:
+    one continuous output, per-segment summary and fidelity; --segment solves one."""
+    from cstorm import examples
+
+    p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
+    monkeypatch.setitem(examples._registry(), "twoseg", lambda: cs.MotionSequence([p, p], name="twoseg"))
+    rc, stdout, _ = _run(["solve", "twoseg", "--max-iter", "1", "--out", str(tmp_path / "seq"), "--json"])
+    s = _one_json(stdout)
+    assert rc == 1 and s["problem"] == "twoseg" and len(s["segments"]) == 2
+    assert [g["iterations"] for g in s["segments"]] == [2, 2] and s["iterations"] == 4
+    assert len(s["fidelity"]["segments"]) == 2 and all(len(g["checks"]) == 2 for g in s["fidelity"]["segments"])
+    assert s["segments"][1]["fidelity"]["segment"] == "acrobot_swing_up"
+    data = np.loadtxt(tmp_path / "seq" / "trajectory.csv", delimiter=",", skiprows=1)
+    assert data.shape[0] == 2 * p.n_steps + 1 and data[-1, 0] == pytest.approx(6.0)
+    assert list(np.unique(data[:, 1])) == [0.0, 1.0]
+    rc, stdout, _ = _run(["animate", str(tmp_path / "seq"), "--no-animation", "--json"])
+    assert rc == 0
+    # one segment, from its own nominal start (q0, v0 of the segment)
+    rc, stdout, _ = _run(["solve", "twoseg", "--segment", "1", "--max-iter", "1", "--no-fidelity", "--no-animation",
+                          "--out", str(tmp_path / "one"), "--json"])
+    s = _one_json(stdout)
+    assert rc == 1 and len(s["segments"]) == 1 and s["provenance"]["source"]["segment"] == "1"
+    sol = cs.load_solution(tmp_path / "one" / "solution.npz")
+    np.testing.assert_allclose(sol.trajectory["q"][0], p.q0)
+    rc, stdout, _ = _run(["solve", "twoseg", "--segment", "roll", "--json"])
+    assert rc == 2 and "no segment 'roll'" in _one_json(stdout)["message"]

@@ -177,9 +177,15 @@ def cmd_solve(args):
     log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     log(f"cstorm solve {args.problem}" + (f" --segment {args.segment}" if args.segment else "") +
         f": {problem!r}; method {method}, max_iter {max_iter}; output {out}")
-    sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not args.json, out=sys.stderr,
-                   checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None, **kw)
-    log(f"solved in {sol.wall_time_s:.1f} s (compile {sol.compile_time_s:.1f} s): {sol.message}")
+    if args.guess:
+        from .report import solution_at
+
+        sol = solution_at(problem)
+        log("--guess: not solving; writing the outputs of the initial guess")
+    else:
+        sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not args.json, out=sys.stderr,
+                       checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None, **kw)
+        log(f"solved in {sol.wall_time_s:.1f} s (compile {sol.compile_time_s:.1f} s): {sol.message}")
     summary = write_outputs(problem, sol, out, source=source, check_fidelity=not args.no_fidelity,
                             animation=not args.no_animation,
                             extra_provenance=dict(command=["cstorm"] + list(args.argv or [])), log=log)
@@ -302,6 +308,8 @@ def build_parser():
     ps.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a shipped example's factory keyword argument (e.g. --set dt=0.02), or for a problem "
                          "file a dotted key of the file (e.g. --set motion.dt=0.01); VALUE is read as JSON")
+    ps.add_argument("--guess", action="store_true",
+                    help="do not solve: write the outputs (plots, animation) of the initial guess (exit code 1)")
     ps.add_argument("--no-animation", action="store_true", help="skip the animation")
     ps.add_argument("--no-fidelity", action="store_true", help="skip the re-simulation fidelity check")
     ps.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")

@@ -298,7 +298,7 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
     crit = []
     for k, c in enumerate(_array(ctx, doc, "criterion")):
         try:
-            check_criteria_spec([c], model, where=f"[[criterion]] #{k + 1}")
+            check_criteria_spec(c, model, where=f"[[criterion]] #{k + 1}")
         except CstormError as e:
             raise ProblemFileError(f"{path}: {e}") from None
         crit.append(dict(c))

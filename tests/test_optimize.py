@@ -160,3 +160,23 @@ def test_ipopt_swing_up(problem):
     assert abs(qT[0] - np.pi) < 1e-3 and abs(vT[0]) < 1e-3
     # measured: IPOPT (L-BFGS Hessian) finds a cheaper swing-up than SLSQP here (41.5 vs 154)
     assert s.cost < 200.0 and s.info["method"] == "ipopt"
+
+
+def test_variable_bounds_follow_joint_limits():
+    """Free control points are boxed by the active joints' position limits (a clamped
+    B-spline stays in the convex hull of its control points); unlimited joints are
+    unbounded."""
+    from cstorm.optimize.solve import variable_bounds
+    m = cs.robots.tumbler()
+    q0 = cs.robots.tumbler_standing_q()
+    p = MotionProblem(m, ["shoulder", "hip"], 1.0, 8, 0.05, q0)
+    lb, ub = variable_bounds(p)
+    nf = p.n_free
+    assert lb.shape == ub.shape == (p.n_vars,)
+    # layout order is model order: hip first, then shoulder
+    assert p.active == ("hip", "shoulder")
+    np.testing.assert_allclose(lb[:nf], -2.8)
+    np.testing.assert_allclose(ub[nf:], 3.0)
+    a = examples.get("acrobot")(**FAST)
+    lb, ub = variable_bounds(a)
+    assert np.all(np.isinf(lb)) and np.all(np.isinf(ub))

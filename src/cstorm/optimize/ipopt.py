@@ -130,7 +130,9 @@ def run_ipopt(ca, ev, x0, tracker, stage, params, max_iter, tol, options):
     solver = ca.nlpsol("cstorm_ipopt", "ipopt", nlp, opts)
     lbg = np.concatenate([np.zeros(ne), np.zeros(ni)])
     ubg = np.concatenate([np.zeros(ne), np.full(ni, np.inf)])
-    args = dict(x0=x0)
+    from .solve import variable_bounds, _clip_into
+    lbx, ubx = variable_bounds(ev.p)
+    args = dict(x0=_clip_into(x0, lbx, ubx), lbx=lbx, ubx=ubx)
     if m:
         args.update(lbg=lbg, ubg=ubg)
     res = solver(**args)

@@ -360,8 +360,37 @@ def _jsonable(d):
 # ---------------------------------------------------------------------------------------
 # SLSQP
 # ---------------------------------------------------------------------------------------
+def variable_bounds(problem):
+    """Box bounds ``(lb, ub)`` (each (n_vars,)) on the decision vector given to the solver.
+
+    The free control points of an active joint's spline lie within the joint's position
+    limits (``model.q_lower``/``q_upper``; +-inf where unlimited). A clamped B-spline lies
+    in the convex hull of its control points, so these bounds keep the whole path within
+    the limits, and they stop a quasi-Newton step from throwing the controls to absurd
+    values (SLSQP otherwise may, far from the solution). A problem may override them with
+    an attribute ``x_bounds = (lb, ub)``; variables past the spline's (e.g. free initial
+    states) are unbounded unless the problem says otherwise.
+    """
+    custom = getattr(problem, "x_bounds", None)
+    if custom is not None:
+        lb, ub = (np.broadcast_to(np.asarray(b, float), (problem.n_vars,)).copy() for b in custom)
+        return lb, ub
+    lb, ub = np.full(problem.n_vars, -np.inf), np.full(problem.n_vars, np.inf)
+    m, lay = problem.model, problem.layout
+    nf = problem.n_free
+    lo, hi = np.asarray(m.q_lower, float), np.asarray(m.q_upper, float)
+    for j, qi in enumerate(lay.qa_idx):
+        lb[j * nf:(j + 1) * nf], ub[j * nf:(j + 1) * nf] = lo[qi], hi[qi]
+    return lb, ub
+
+
+def _clip_into(x, lb, ub):
+    """x moved into the box (an initial guess outside it would be rejected by SLSQP)."""
+    return np.minimum(np.maximum(x, lb), ub)
+
+
 def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
-    from scipy.optimize import minimize
+    from scipy.optimize import Bounds, minimize
 
     cons = []
     if ev.me.any():
@@ -378,7 +407,10 @@ def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
 
     opts = dict(maxiter=int(max_iter), ftol=float(tol))
     opts.update(options or {})
-    res = minimize(fun, x, jac=True, method="SLSQP", constraints=cons, options=opts, callback=cb)
+    lb, ub = variable_bounds(ev.p)
+    bounds = Bounds(lb, ub) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
+    res = minimize(fun, _clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
+                   callback=cb, bounds=bounds)
     return np.asarray(res.x), bool(res.success), f"SLSQP: {res.message}", int(res.nit)
 
 

@@ -140,10 +140,17 @@ def contact_solution(contact_problem):
     return report.solution_at(contact_problem, evaluate=False)
 
 
-def test_outputs_of_a_contact_problem(contact_problem, contact_solution, tmp_path):
+def test_outputs_of_a_contact_problem(contact_problem, contact_solution, tmp_path, monkeypatch):
     p, s = contact_problem, contact_solution
     src = dict(kind="example", name="none", kwargs={})
-    summary = report.write_outputs(p, s, tmp_path, source=src, check_fidelity=False)
+
+    def broken(*a, **k):
+        raise RuntimeError("simulated failure")
+
+    monkeypatch.setattr(report, "fidelity", broken)  # a failing check is recorded, not fatal
+    summary = report.write_outputs(p, s, tmp_path, source=src)
+    assert summary["fidelity"] == dict(ok=False, flags=["fidelity check failed: RuntimeError: simulated failure"])
+    assert summary["warnings"] == ["fidelity check failed: RuntimeError: simulated failure"]
     files = sorted(os.listdir(tmp_path))
     assert files == ["animation.gif", "contacts.png", "joints.png", "paths.png", "solution.npz", "summary.json",
                      "torques.png", "trajectory.csv"] == summary["files"]
@@ -160,8 +167,11 @@ def test_outputs_of_a_contact_problem(contact_problem, contact_solution, tmp_pat
     assert len(js["segments"]) == 1 and js["segments"][0]["problem"] == "tiny"
     pv = js["provenance"]
     assert pv["cstorm_version"] == cs.__version__ and pv["problem_hash"] == p.hash() and pv["source"] == src
-    # the solution keeps its source for `cstorm animate`
-    assert cs.load_solution(tmp_path / "solution.npz").info["source"] == src
+    # the solution keeps its source for `cstorm animate`, and its contact data
+    loaded = cs.load_solution(tmp_path / "solution.npz")
+    assert loaded.info["source"] == src
+    mo = Motion.from_solution(p, loaded)
+    assert mo.contact_names[0] == "torso_ground_0" and mo.contact["force"].shape == (p.n_steps + 1, 6, 3)
     # CSV: a header naming every column; contact normal forces per point
     header = (tmp_path / "trajectory.csv").read_text().splitlines()[0].split(",")
     assert header[:3] == ["t", "segment", "q_root_x"] and "tau_hip" in header

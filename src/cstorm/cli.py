@@ -180,8 +180,8 @@ def cmd_solve(args):
     if args.guess:
         from .report import solution_at
 
-        sol = solution_at(problem)
-        log("--guess: not solving; writing the outputs of the initial guess")
+        sol = solution_at(problem, evaluate=False)
+        log("--guess: not solving; writing the outputs of the initial guess (cost and violation not evaluated)")
     else:
         sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not args.json, out=sys.stderr,
                        checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None, **kw)
@@ -198,12 +198,14 @@ def cmd_solve(args):
             else "fidelity not checked"
         dev = ", ".join(f"{k} {fid[k]:.2g}" for k in ("position_m", "angle_deg") if fid.get(k) is not None)
         failed = [k for k, v in summary["criteria"].items() if not v.get("ok")]
+        g = lambda x, fmt: "n/a" if x is None else format(x, fmt)
         print(f"{summary['problem']}: {'success' if summary['success'] else 'FAILED'}: {summary['message']}\n"
-              f"  cost {summary['cost']:.6g}, violation {summary['constraint_violation']:.2e}, "
+              f"  cost {g(summary['cost'], '.6g')}, violation {g(summary['constraint_violation'], '.2e')}, "
               f"{summary['iterations']} iterations, {summary['wall_time_s']:.1f} s "
               f"(compile {summary['compile_time_s']:.1f} s)\n"
               f"  criteria: {len(summary['criteria']) - len(failed)}/{len(summary['criteria'])} ok"
               + (f" (failed: {failed})" if failed else "") + f"; {fl}" + (f" ({dev})" if dev else "") +
+              "".join(f"\n  warning: {w}" for w in summary.get("warnings", [])) +
               f"\n  wrote {', '.join(summary['files'])} to {out}", file=sys.stderr)
     return 0 if summary["success"] else 1
 
@@ -309,7 +311,8 @@ def build_parser():
                     help="a shipped example's factory keyword argument (e.g. --set dt=0.02), or for a problem "
                          "file a dotted key of the file (e.g. --set motion.dt=0.01); VALUE is read as JSON")
     ps.add_argument("--guess", action="store_true",
-                    help="do not solve: write the outputs (plots, animation) of the initial guess (exit code 1)")
+                    help="do not solve: write the outputs (plots, animation) of the initial guess; its cost and "
+                         "constraint violation are not evaluated (exit code 1)")
     ps.add_argument("--no-animation", action="store_true", help="skip the animation")
     ps.add_argument("--no-fidelity", action="store_true", help="skip the re-simulation fidelity check")
     ps.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")

@@ -6,8 +6,8 @@ plays as one continuous motion with its segment's name shown.
 Rendering is fast by construction: body poses come from one vmapped forward-kinematics
 call (`Motion.kinematics`); frames are subsampled to ``fps`` (default 25) in real time;
 the static background (axes, obstacles) is drawn once and every frame only redraws the
-moving artists on a copy of it (blitting, Agg); frames are quantized to a palette and
-written as a GIF with Pillow (and piped to ffmpeg for an MP4 when ``ffmpeg`` is on PATH).
+moving artists on a copy of it (blitting, Agg); frames are quantized to one shared
+palette and written as a GIF with Pillow (and piped to ffmpeg for an MP4 when ``ffmpeg`` is on PATH).
 
 Force arrows start at each contact point and show the total contact force on the robot
 (normal plus friction); the scale is printed in the corner (the robot's weight is drawn
@@ -118,8 +118,7 @@ def render_frames(motion, *, fps=25.0, size=(6.4, 4.0), dpi=100, max_frames=2000
     anch, = ax.plot([], [], "^", color="k", ms=7, zorder=5, animated=True)
     trace, = ax.plot([], [], color="C3", lw=0.8, alpha=0.6, zorder=3, animated=True)
     dot, = ax.plot([], [], "o", color="C3", ms=3, zorder=5, animated=True)
-    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, ha="left", va="top", fontsize=8, family="monospace",
-                    animated=True, bbox=dict(facecolor="white", alpha=0.7, edgecolor="none", pad=1.5))
+    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, ha="left", va="top", fontsize=8, animated=True)
     dyn = patches + [bones, jdots, anch, trace, dot] + ([arrows] if arrows is not None else []) + [label]
 
     fig.canvas.draw()
@@ -154,14 +153,23 @@ def render_frames(motion, *, fps=25.0, size=(6.4, 4.0), dpi=100, max_frames=2000
     return frames, fps_eff
 
 
-def write_gif(frames, path, fps):
-    """Write RGB frames as an animated GIF (atomically), looping forever."""
+def write_gif(frames, path, fps, colors=64):
+    """Write RGB frames as an animated GIF (atomically), looping forever. One palette
+    for all frames (from 8 sample frames plus swatches of the drawing colours), so the
+    encoder stores only what changes between frames."""
     from PIL import Image
+    from matplotlib import colors as mcolors
 
     from ..report import atomic_write
 
-    ims = [Image.fromarray(f).quantize(colors=128, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
-           for f in frames]
+    idx = np.unique(np.linspace(0, len(frames) - 1, min(8, len(frames))).astype(int))
+    w = frames[0].shape[1]
+    sw = [np.array(mcolors.to_rgb(c)) * 255 for c in ["crimson", "k", "0.15", "0.88", "white"] +
+          [f"C{i}" for i in range(10)]]
+    swatch = np.repeat(np.repeat(np.array(sw, np.uint8)[None], 4, axis=0), -(-w // len(sw)), axis=1)[:, :w]
+    sample = np.concatenate([frames[i] for i in idx] + [swatch], axis=0)
+    pal = Image.fromarray(sample).quantize(colors=colors, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    ims = [Image.fromarray(f).quantize(palette=pal, dither=Image.Dither.NONE) for f in frames]
     dur = int(round(1000.0 / fps))
     atomic_write(path, lambda tmp: ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
                                                duration=dur, loop=0, optimize=False), ".gif")

@@ -104,7 +104,7 @@ def plot_torques(motion, path):
     ax.grid(alpha=0.3)
     _segments(ax, motion)
     _legend(ax, len(motion.active))
-    ax.set_title(f"{motion.name}: active joint torques (dotted: effort limits)", fontsize=10)
+    fig.suptitle(f"{motion.name}: active joint torques (dotted: effort limits)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -136,7 +136,7 @@ def plot_contacts(motion, path, d_max_mm=50.0):
         ax.grid(alpha=0.3)
         _segments(ax, motion, label=ax is axs[0])
     _legend(axs[0], k)
-    axs[0].set_title(f"{motion.name}: contact points", fontsize=10)
+    fig.suptitle(f"{motion.name}: contact points (normal force and signed distance)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -239,3 +239,22 @@ def test_fidelity_of_a_contact_motion(contact_problem, contact_solution):
     fine, ref = f["checks"]
     assert abs(fine["angle_deg"] - ref["angle_deg"]) < 0.2 * ref["angle_deg"]  # both see the plan's own error
     assert f["checks"][1]["rhs_evaluations"] > 100
+
+
+def test_gif_and_mp4_writers(tmp_path):
+    from PIL import Image
+    from cstorm.viz import animation
+
+    frames = [np.full((40, 64, 3), 255, np.uint8) for _ in range(5)]
+    for k, f in enumerate(frames):
+        f[10:20, 5 + 10 * k:15 + 10 * k] = (220, 20, 60)  # a moving crimson square
+    assert animation.write_gif(frames, tmp_path / "a.gif", fps=25.0) == "a.gif"
+    with Image.open(tmp_path / "a.gif") as im:
+        assert im.n_frames == 5 and im.info["duration"] == 40 and im.info["loop"] == 0
+        im.seek(4)
+        px = np.asarray(im.convert("RGB"))
+        assert np.abs(px[15, 50].astype(int) - (220, 20, 60)).max() < 40 and px[15, 5].min() > 200
+    # no ffmpeg (or a failing one): no MP4, no temporary left behind
+    assert animation.write_mp4(frames, tmp_path / "a.mp4", 25.0, ffmpeg=str(tmp_path / "no-ffmpeg")) is None
+    assert sorted(os.listdir(tmp_path)) == ["a.gif"]
+    assert list(animation.frame_indices(np.linspace(0, 1, 1001), fps=25)) == list(range(0, 1001, 40))

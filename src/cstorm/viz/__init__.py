@@ -1,1 +1,12 @@
-"""Pictures of models and motions: planar drawings, plots, animations (matplotlib)."""
+"""Pictures of models and motions (matplotlib, Agg; Pillow for GIFs).
+
+- `planar`: side-view (x-z) outlines of collision shapes, obstacles (planes as hatched
+  solids), the kinematic skeleton.
+- `motion`: `Motion`, a solved problem or sequence joined into one continuous motion
+  (the trajectory, contact data, segment labels) with cached forward kinematics.
+- `plots`: PNG plots (joint positions, torques, contact forces and distances, x-z paths).
+- `animation`: the GIF (and MP4 with ffmpeg) animation.
+- `demo`: the foundation demo (double pendulum).
+
+`cstorm.report.write_outputs` / ``cstorm solve`` and ``cstorm animate`` use them.
+"""

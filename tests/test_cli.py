@@ -106,8 +106,8 @@ def test_summary_and_files(solved):
     pv = s["provenance"]
     assert pv["cstorm_version"] == cs.__version__ and len(pv["problem_hash"]) == 16
     assert pv["solver_options"]["method"] == "slsqp" and pv["solver_options"]["max_iter"] == 300
-    assert pv["source"]["kind"] == "toml" and pv["source"]["overrides"]["motion.params.target"] == pytest.approx(2.356,
-                                                                                                                abs=1e-3)
+    assert pv["source"]["kind"] == "toml"
+    assert pv["source"]["overrides"]["motion.params.target"] == pytest.approx(2.356, abs=1e-3)
     sol = cs.load_solution(out / "solution.npz")
     assert sol.success and abs(sol.trajectory["q"][-1][0] - 3 * np.pi / 4) < 1e-3
     assert sol.info["source"] == pv["source"]

@@ -39,8 +39,9 @@ from the planned start state of that segment, twice:
    cstorm's fixed-step rollout: the plan's time-discretization error (an optimizer that
    exploits integration error shows up here);
 2. ``"dop853"``: scipy's adaptive 8th-order Dormand-Prince integrator (``rtol=1e-6``,
-   ``atol=1e-8``; tighter tolerances change the reported deviations by < 1 %) on the continuous-time ODE, the active joints evaluated on their
-   splines at the integrator's own times: an independent, error-controlled integrator,
+   ``atol=1e-8``; tighter tolerances change the reported deviations by < 1 %) on the
+   continuous-time ODE, the active joints evaluated on their splines at the
+   integrator's own times: an independent, error-controlled integrator,
    i.e. a reference solution of the motion's ODE (it also checks cstorm's rollout code:
    the half-step spline samples, the Lie-group updates).
 
@@ -60,7 +61,8 @@ of a sequence are checked separately, each from its own planned start (chaining
 open-loop re-simulations would measure the instability of, e.g., a handstand, not the
 integration). Cost: the fixed-step check reuses `cstorm.simulate.simulate`'s compiled
 rollout (segments with the same horizon, step and environment structure compile once);
-the DOP853 check compiles one right-hand side per problem structure and then costs about
+the DOP853 check compiles one right-hand side per joint split and environment structure
+(shared by all segments of a sequence) and then costs about
 one dynamics evaluation plus dispatch (~0.5-1 ms for the tumbler with contact) per
 right-hand-side call, ~5,000 calls for 2 s of tumbler motion with contact.
 """
@@ -509,25 +511,26 @@ def _normalize_passive(model, layout, q):
 
 
 def _rhs_function(problem):
-    """A compiled ``f(t, x, q_template, ctrl, model, env, contact) -> xdot`` of the
-    passive state ``x = (q_p, v_p)`` with the active joints on their splines (shared by
-    problems of the same structure)."""
+    """A compiled ``f(t, x, q_template, v_template, qa, va, aa, model, env, contact) ->
+    xdot`` of the passive state ``x = (q_p, v_p)`` given the active joints' position,
+    velocity and acceleration at ``t`` (evaluated on the host from the spline), so one
+    compile serves every problem with the same joints split and environment structure
+    (all segments of a sequence, whatever their horizon or control points)."""
     import jax
     import jax.numpy as jnp
     from .simulate import _stage
 
-    layout, spline = problem.layout, problem.spline
+    layout = problem.layout
     user_cf = None if problem.env is not None or problem._contact_fn is None else _static_contact_fn(problem)
-    key = (layout, spline, problem.env is not None, user_cf)
+    key = (layout, problem.env is not None, user_cf)
     if key in _rhs_cache:
         return _rhs_cache[key]
     iqp, ivp = np.array(layout.qp_idx, int), np.array(layout.vp_idx, int)
     nqp = len(iqp)
 
-    def f(t, x, q_tmpl, v_tmpl, ctrl, model, env, contact):
+    def f(t, x, q_tmpl, v_tmpl, qa, va, aa, model, env, contact):
         q = _normalize_passive(model, layout, q_tmpl.at[iqp].set(x[:nqp]))
         v = v_tmpl.at[ivp].set(x[nqp:])
-        qa, va, aa = spline.evaluate_all(ctrl, t)
         if env is not None:
             from .contact import contact_forces
 
@@ -546,37 +549,43 @@ def _rhs_function(problem):
 
 def _adaptive(problem, ctrl, q0, v0, t_eval, rtol=1e-6, atol=1e-8):
     """Re-simulate with scipy's adaptive DOP853 (8th order, error-controlled) on the
-    continuous-time ODE: active joints evaluated on their splines at the solver's own
-    times. Returns (q (len(t_eval), nq), v, n_rhs_evaluations)."""
+    continuous-time ODE: active joints evaluated on their splines (scipy `BSpline` of
+    the same knots and control points) at the solver's own times. Returns
+    (q (len(t_eval), nq), v, n_rhs_evaluations)."""
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
+    from scipy.interpolate import BSpline
 
     fn = _rhs_function(problem)
-    layout = problem.layout
+    layout, spl = problem.layout, problem.spline
     iqp, ivp = np.array(layout.qp_idx, int), np.array(layout.vp_idx, int)
     ia, iva = np.array(layout.qa_idx, int), np.array(layout.va_idx, int)
+    ctrl = np.asarray(ctrl, float).reshape(spl.n_ctrl, -1)
+    B0 = BSpline(np.asarray(spl.knots), ctrl, spl.degree, extrapolate=True)
+    B1, B2 = B0.derivative(1), B0.derivative(2)
     q_t, v_t = jnp.asarray(q0, jnp.float64), jnp.asarray(v0, jnp.float64)
-    ctrl_j = jnp.asarray(ctrl, jnp.float64)
-    args = (q_t, v_t, ctrl_j, problem.model, problem.env, problem.contact)
+    args = (problem.model, problem.env, problem.contact)
     x0 = np.concatenate([np.asarray(q0)[iqp], np.asarray(v0)[ivp]])
     bound = max(problem.q_bound, problem.v_bound)
+    T = problem.t_final
 
     def rhs(t, x):
         if not np.all(np.abs(x) < bound):
             raise DivergenceError(f"adaptive re-simulation left the bounds at t = {t:.6g} s")
-        return np.asarray(fn(t, jnp.asarray(x), *args))
+        tc = min(max(t, 0.0), T)
+        return np.asarray(fn(t, jnp.asarray(x), q_t, v_t, B0(tc), B1(tc), B2(tc), *args))
 
-    sol = solve_ivp(rhs, (0.0, problem.t_final), x0, method="DOP853", t_eval=t_eval, rtol=rtol, atol=atol)
+    sol = solve_ivp(rhs, (0.0, T), x0, method="DOP853", t_eval=t_eval, rtol=rtol, atol=atol)
     if sol.status != 0 or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
         raise DivergenceError(f"adaptive re-simulation (DOP853) failed: {sol.message}")
     X = sol.y.T
     nqp = len(iqp)
-    qa, va, _ = (np.asarray(a) for a in problem.spline.evaluate_all(ctrl_j, jnp.asarray(t_eval)))
+    tt = np.clip(np.asarray(t_eval, float), 0.0, T)
     Q = np.tile(np.asarray(q0, float), (len(t_eval), 1))
     V = np.tile(np.asarray(v0, float), (len(t_eval), 1))
     Q[:, iqp], V[:, ivp] = X[:, :nqp], X[:, nqp:]
     if len(ia):
-        Q[:, ia], V[:, iva] = qa.reshape(len(t_eval), -1), va.reshape(len(t_eval), -1)
+        Q[:, ia], V[:, iva] = B0(tt), B1(tt)
     for i in layout.passive_joints:  # unit quaternions
         j = problem.model.joints[i]
         qs = problem.model.q_starts[i]

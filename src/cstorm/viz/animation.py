@@ -111,7 +111,8 @@ def render_frames(motion, *, fps=25.0, size=(6.4, 4.0), dpi=100, max_frames=2000
         shown = c["normal_magnitude"][idx] > 1e-3 * max(weight, 1e-9)
 
     ngeo = len(outlines[0])
-    patches = [ax.add_patch(Polygon(outlines[0][g], closed=True, facecolor=f"C{g % 10}", edgecolor="k", lw=0.8,
+    body_colors = ["C0", "C1", "C2", "C4", "C9", "C8", "C6", "C5"]  # no red (force arrows, CoM) or grey
+    patches = [ax.add_patch(Polygon(outlines[0][g], closed=True, facecolor=body_colors[g % 8], edgecolor="k", lw=0.8,
                                     alpha=0.9, zorder=4, animated=True)) for g in range(ngeo)]
     bones = ax.add_collection(LineCollection(skel[0][0], colors="0.15", linewidths=1.6, zorder=5, animated=True))
     jdots, = ax.plot([], [], "o", color="0.15", ms=3.5, zorder=5, animated=True)

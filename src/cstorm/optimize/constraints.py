@@ -15,8 +15,9 @@ function per problem); switched-off ones are simply not passed to the solver.
 Ready-made: `JointLimits` (position and velocity limits from the model, sampled),
 `TorqueLimits` (motor torques, sampled), `TerminalState` (passive states or base pose at
 ``t_final``, equality or bounds), `ContactDistance` (contact points clear of the
-obstacles in a time window, e.g. a flight phase), `TerminalConstraint` and
-`PathConstraint` (user JAX callables).
+obstacles in a time window, e.g. a flight phase), `Periodic` (final state = start
+state, for gait cycles with ``MotionProblem(free_initial=...)``), `AverageSpeed`,
+`TerminalConstraint` and `PathConstraint` (user JAX callables).
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import jax.numpy as jnp
 from ..errors import ProblemError
 from .costs import joint_error, resolve, _jsonable
 
-__all__ = ["Constraint", "JointLimits", "TorqueLimits", "TerminalState", "ContactDistance", "TerminalConstraint",
-           "PathConstraint"]
+__all__ = ["Constraint", "JointLimits", "TorqueLimits", "TerminalState", "ContactDistance", "Periodic",
+           "AverageSpeed", "TerminalConstraint", "PathConstraint"]
 
 
 class Constraint:
@@ -243,6 +244,101 @@ class ContactDistance(Constraint):
         return {"type": "ContactDistance", "min_distance": _jsonable(self.min_distance), "window": self.window,
                 "geoms": self.geoms, "stage": self.stage}
 
+
+class Periodic(Constraint):
+    """The motion ends where it started: ``q_j(T) = q_j(0)`` and ``v_j(T) = v_j(0)`` for
+    every joint ``j`` except those in ``exclude`` (e.g. ``("root_x",)``: a walker ends one
+    stride ahead). With ``swap`` (pairs of joint names, e.g. ``[("hip_l", "hip_r"),
+    ...]``) the end state of each joint of a pair equals the start state of the other (a
+    mirror-symmetric half cycle of a planar biped: one step, left and right exchanged);
+    the joints of a pair must have the same type. ``which``: ``"q"``, ``"v"`` or ``"qv"``
+    (default). Equalities, ``kind="eq"``; values: position errors on the manifold
+    (``difference(q_partner(0), q_j(T))``, rad or m) then velocity errors (rad/s, m/s), joint
+    by joint in model order. ``velocity_scale`` (s) multiplies the velocity errors.
+
+    The start state is the trajectory's first sample, so with
+    ``MotionProblem(free_initial=...)`` it is the optimized start state. Without free
+    start variables a periodic motion at nonzero speed cannot be found by single
+    shooting from a fixed start."""
+
+    def __init__(self, exclude=(), swap=None, which="qv", velocity_scale=1.0, stage=0, name=None):
+        self.exclude = (exclude,) if isinstance(exclude, str) else tuple(exclude)
+        self.swap = None if swap is None else [tuple(p) for p in swap]
+        if which not in ("q", "v", "qv"):
+            raise ProblemError(f"Periodic: which must be 'q', 'v' or 'qv', got {which!r}")
+        self.which, self.velocity_scale = which, float(velocity_scale)
+        _set_common(self, "eq", stage, name)
+
+    def check(self, problem):
+        m = problem.model
+        for n in self.exclude:
+            if n not in m.joint_names:
+                raise ProblemError(f"Periodic: exclude names {n!r}, which is not a joint; joints are "
+                                   f"{list(m.joint_names)}")
+        partner = {n: n for n in m.joint_names}
+        for pair in self.swap or []:
+            if len(pair) != 2 or any(n not in m.joint_names for n in pair):
+                raise ProblemError(f"Periodic: swap entries must be pairs of joint names, got {pair!r}; joints are "
+                                   f"{list(m.joint_names)}")
+            a, b = pair
+            if partner[a] != a or partner[b] != b:
+                raise ProblemError(f"Periodic: joint {a!r} or {b!r} appears in more than one swap pair")
+            ja, jb = m.joints[m.joint_names.index(a)], m.joints[m.joint_names.index(b)]
+            if type(ja) is not type(jb):
+                raise ProblemError(f"Periodic: swapped joints {a!r} and {b!r} have different types")
+            partner[a], partner[b] = b, a
+        self._pairs = tuple((n, partner[n]) for n in m.joint_names if n not in self.exclude)
+        if not self._pairs:
+            raise ProblemError("Periodic: every joint is excluded")
+
+    def values(self, ctx, end, samples):
+        m = ctx.model
+        q0, v0 = samples["q"][0], samples["v"][0]
+        qe, ve = [], []
+        for j, p in self._pairs:
+            if "q" in self.which:
+                qe.append(joint_error(m, j, end["q"][m.joint_q(j)], q0[m.joint_q(p)]))
+            if "v" in self.which:
+                ve.append(self.velocity_scale * (end["v"][m.joint_v(j)] - v0[m.joint_v(p)]))
+        return jnp.concatenate(qe + ve)
+
+    def label(self):
+        return self.name or "Periodic"
+
+    def describe(self):
+        return {"type": "Periodic", "exclude": list(self.exclude), "swap": self.swap, "which": self.which,
+                "velocity_scale": self.velocity_scale, "stage": self.stage}
+
+
+class AverageSpeed(Constraint):
+    """Average speed along a 1-DoF joint (the planar base's ``root_x`` by default):
+    ``(q_j(T) - q_j(0)) / t_final = speed`` (m/s or rad/s; ``speed`` may name a problem
+    parameter, so continuation can ramp it). ``kind="eq"`` (default) or ``"ineq"`` (at
+    least ``speed``). One value, m/s."""
+
+    def __init__(self, speed, joint="root_x", kind="eq", stage=0, name=None):
+        self.speed, self.joint = speed, joint
+        _set_common(self, kind, stage, name)
+
+    def check(self, problem):
+        m = problem.model
+        if self.joint not in m.joint_names:
+            raise ProblemError(f"AverageSpeed: no joint named {self.joint!r}; joints are {list(m.joint_names)}")
+        if m.joints[m.joint_names.index(self.joint)].nq != 1:
+            raise ProblemError(f"AverageSpeed: joint {self.joint!r} is not 1-DoF")
+        self._i = m.joint_q(self.joint).start
+
+    def values(self, ctx, end, samples):
+        T = ctx.problem.t_final
+        avg = (end["q"][self._i] - samples["q"][0, self._i]) / T
+        return jnp.atleast_1d(avg - resolve(self.speed, ctx.params))
+
+    def label(self):
+        return self.name or f"AverageSpeed({self.joint})"
+
+    def describe(self):
+        return {"type": "AverageSpeed", "speed": _jsonable(self.speed), "joint": self.joint, "kind": self.kind,
+                "stage": self.stage}
 
 
 class TerminalConstraint(Constraint):

@@ -9,6 +9,14 @@ fixed by the boundary conditions), joint by joint in model order (``problem.acti
 of every active joint equal ``q0``/``v0``; optional end position, velocity and
 acceleration (``q_final_active``, ``v_final_active``, ``rest_end``).
 
+Free initial state (``free_initial``, e.g. for periodic motions): ``x`` then continues
+with offsets of the start state, ``x = [free.T.ravel(), dq0, dv0]``: ``dq0`` the tangent
+offsets of the selected joints' start positions (joint by joint in model order, ``nv`` of
+the joint each; ``q0_j (+) dq0_j``, plain addition for 1-DoF joints), ``dv0`` the offsets
+of their start velocities (likewise). The active splines' start conditions and the
+passive initial state both come from the offset start state (`MotionProblem.initial_state`),
+so it is one consistent state; at ``x0`` the offsets are zero (the nominal ``q0``/``v0``).
+
 Objective ``f(x) = sum of terminal costs + integral of running costs`` (see `costs`);
 equality constraints ``c_eq(x) = 0``, inequalities ``c_in(x) >= 0`` (see
 `constraints`). Everything the compiled functions read that is a number — the model's
@@ -105,6 +113,15 @@ class MotionProblem:
       segment: steps per checkpointed scan segment (default ~sqrt(N)).
       q_bound, v_bound: divergence bounds of the rollout.
       name: a label for displays and files.
+      free_initial: optional dict ``joint name -> "q" | "v" | "qv"``: these parts of the
+        joints' initial state become decision variables, as offsets from ``q0``/``v0``
+        appended to ``x`` (see the module docstring; zero in the default initial guess).
+        Use with `constraints.Periodic` for periodic motions (a gait cycle), which single
+        shooting from a fixed start cannot be at nonzero speed. Active joints' start
+        position and velocity follow the offset state (their splines start there); with
+        ``rest_start=True`` an active joint's velocity cannot be free. `solve` takes no
+        variable bounds: bound the start state, where wanted, by a constraint on the
+        trajectory's first sample (``samples["q"][0]`` in a `constraints.Constraint`).
       success_criteria: optional problem-specific success criteria, checked after a
         solve by `cstorm.report.evaluate_criteria` (and reported in ``summary.json`` by
         ``cstorm solve``): a callable ``(solution) -> {name: {"value", "tol", "ok"}}`` or
@@ -119,7 +136,8 @@ class MotionProblem:
     def __init__(self, model, active, t_final, n_ctrl, dt, q0, v0=None, *, env=None, contact=None, contact_fn=None,
                  q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
                  constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
-                 jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None):
+                 jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None,
+                 free_initial=None):
         require_x64("MotionProblem")
         self.model = model
         self.name = str(name)
@@ -154,6 +172,7 @@ class MotionProblem:
         self.rest_end, self.rest_start = bool(rest_end), bool(rest_start)
         if self.rest_start and np.any(self.v0[list(self.layout.va_idx)] != 0):
             raise ProblemError("MotionProblem: rest_start=True needs zero initial velocity of the active joints")
+        self.free_initial = self._parse_free_initial(free_initial)
         self.params = {k: np.asarray(v, dtype=float) for k, v in (params or {}).items()}
         self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
         self.constraints = list(constraints or [])
@@ -187,7 +206,8 @@ class MotionProblem:
         if self.n_free < 1:
             raise ProblemError(f"MotionProblem: n_ctrl={n_ctrl} leaves no free control points after the boundary "
                                "conditions; increase n_ctrl")
-        self.n_vars = self.n_free * self.layout.n_active
+        self.n_spline_vars = self.n_free * self.layout.n_active
+        self.n_vars = self.n_spline_vars + len(self._fi_dq) + len(self._fi_dv)
         self._basis = {k: jnp.asarray(v) for k, v in active_paths(self.spline, self.n_steps, integrator).items()}
         self.solve_options = {}
         self._compiled = {}
@@ -195,6 +215,63 @@ class MotionProblem:
         self.n_eq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "eq")
         self.n_ineq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "ineq")
         self.x0 = self._initial_guess(initial_guess)
+
+    # ------------------------------------------------------------------ free initial state
+    def _parse_free_initial(self, spec):
+        """Validate ``free_initial``; set the static index maps ``_fi_joints`` ((joint index,
+        q part?, v part?) in model order), ``_fi_dq`` / ``_fi_dv`` (v indices of the q / v
+        offsets, in x order). Returns the normalized dict (or None)."""
+        self._fi_joints, self._fi_dq, self._fi_dv = (), (), ()
+        if spec is None:
+            return None
+        if not isinstance(spec, dict):
+            raise ProblemError(f"MotionProblem: free_initial must be a dict joint name -> 'q' | 'v' | 'qv', "
+                               f"got {type(spec).__name__}")
+        m = self.model
+        out = {}
+        for name, part in spec.items():
+            if name not in m.joint_names:
+                raise ProblemError(f"MotionProblem: free_initial names {name!r}, which is not a joint; joints are "
+                                   f"{list(m.joint_names)}")
+            if part not in ("q", "v", "qv"):
+                raise ProblemError(f"MotionProblem: free_initial[{name!r}] must be 'q', 'v' or 'qv', got {part!r}")
+            if self.rest_start and "v" in part and name in self.layout.active_names:
+                raise ProblemError(f"MotionProblem: free_initial[{name!r}] frees the velocity of an active joint, "
+                                   "but rest_start=True fixes it at 0")
+            out[name] = part
+        joints, dq, dv = [], [], []
+        for i, name in enumerate(m.joint_names):
+            if name in out:
+                part = out[name]
+                joints.append((i, "q" in part, "v" in part))
+                vs = list(range(m.v_starts[i], m.v_starts[i] + m.joints[i].nv))
+                dq += vs if "q" in part else []
+        for i, _, has_v in joints:
+            if has_v:
+                dv += list(range(m.v_starts[i], m.v_starts[i] + m.joints[i].nv))
+        self._fi_joints, self._fi_dq, self._fi_dv = tuple(joints), tuple(dq), tuple(dv)
+        return out
+
+    def initial_state(self, x, data):
+        """Pure JAX: the start state ``(q0 (nq,), v0 (nv,))`` at decision vector ``x``:
+        ``data["q0"]``/``data["v0"]`` with the free-initial offsets of ``x`` applied (see
+        the module docstring); the nominal state when nothing is free."""
+        q0, v0 = data["q0"], data["v0"]
+        if not self._fi_joints:
+            return q0, v0
+        m = self.model
+        n0 = self.n_spline_vars
+        dq = x[n0: n0 + len(self._fi_dq)]
+        dv = x[n0 + len(self._fi_dq):]
+        k = 0
+        for i, has_q, _ in self._fi_joints:
+            if has_q:
+                j, qs, nv = m.joints[i], m.q_starts[i], m.joints[i].nv
+                q0 = q0.at[qs: qs + j.nq].set(j.integrate(q0[qs: qs + j.nq], dq[k: k + nv]))
+                k += nv
+        if len(self._fi_dv):
+            v0 = v0.at[np.array(self._fi_dv, int)].add(dv)
+        return q0, v0
 
     # ------------------------------------------------------------------ data and contact
     def _make_contact_fn(self, env, contact, contact_fn):
@@ -239,9 +316,10 @@ class MotionProblem:
     def ctrl(self, x, data):
         """Control points (n_ctrl, n_active) of the active paths (layout order)."""
         na = self.layout.n_active
-        free = jnp.reshape(x, (na, self.n_free)).T
+        free = jnp.reshape(x[:self.n_spline_vars], (na, self.n_free)).T
         ia, iv = np.array(self.layout.qa_idx, int), np.array(self.layout.va_idx, int)
-        bc = dict(q0=data["q0"][ia], v0=data["v0"][iv])
+        q0, v0 = self.initial_state(x, data)
+        bc = dict(q0=q0[ia], v0=v0[iv])
         if self.rest_start:
             bc["a0"] = jnp.zeros(na)
         if self.qa_final is not None:
@@ -273,7 +351,8 @@ class MotionProblem:
         cfn = None
         if self._contact_fn is not None:
             cfn = lambda q, v: self._contact_fn(model, data.get("env"), data.get("contact"), q, v)
-        res = rollout(model, self.layout, data["q0"], data["v0"], paths, self.dt, self.n_steps,
+        q0, v0 = self.initial_state(x, data)
+        res = rollout(model, self.layout, q0, v0, paths, self.dt, self.n_steps,
                       integrator=self.integrator, contact_fn=cfn, cost_fn=cost_fn if running else None,
                       params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,
                       record=record)
@@ -424,7 +503,8 @@ class MotionProblem:
                 vals = qa0[k] + (qa1[k] - qa0[k]) * ts / self.t_final
             ctrl = self.spline.fit(np.asarray(ts, float), np.asarray(vals, float), **bc)
             cols.append(np.asarray(self.spline.reduce(ctrl, **{k2: v for k2, v in bc.items()})))
-        return np.stack(cols, axis=1).T.reshape(-1) if na else np.zeros(0)
+        x = np.stack(cols, axis=1).T.reshape(-1) if na else np.zeros(0)
+        return np.concatenate([x, np.zeros(self.n_vars - self.n_spline_vars)])
 
     # ------------------------------------------------------------------ description
     def describe(self) -> dict:
@@ -437,7 +517,8 @@ class MotionProblem:
                     rest_end=self.rest_end, rest_start=self.rest_start,
                     params={k: np.asarray(v).tolist() for k, v in self.params.items()},
                     costs=[c.describe() for c in self.costs], constraints=[c.describe() for c in self.constraints],
-                    n_vars=self.n_vars, n_eq=self.n_eq, n_ineq=self.n_ineq)
+                    n_vars=self.n_vars, n_eq=self.n_eq, n_ineq=self.n_ineq,
+                    **({} if self.free_initial is None else {"free_initial": dict(self.free_initial)}))
 
     def hash(self) -> str:
         """A short hash of `describe()` (which problem a checkpoint or solution is for)."""

@@ -34,6 +34,9 @@ class MotionSequence:
             if s.model.joint_names != segments[0].model.joint_names:
                 raise ProblemError(f"MotionSequence: segment {k} uses a different model (joints "
                                    f"{list(s.model.joint_names)} vs {list(segments[0].model.joint_names)})")
+            if k > 0 and getattr(s, "free_initial", None):
+                raise ProblemError(f"MotionSequence: segment {k} has free_initial, but segments after the first "
+                                   "start where the previous one ended")
         self.segments = segments
         self.name = str(name)
         self.success_criteria = success_criteria

@@ -1,0 +1,405 @@
+"""A planar biped, Gymnasium's ``Walker2d-v5`` (``walker2d.xml``) rebuilt with
+`ModelBuilder` with the same numbers, and a periodic walking problem: one gait cycle
+(two steps) at a chosen average speed, no contact schedule.
+
+Why a builder model and not ``cs.load_mjcf(walker2d.xml)``: the problem must run from a
+plain install (MuJoCo and Gymnasium are test extras). ``tests/test_walker.py`` loads
+Gymnasium's ``walker2d.xml`` with MuJoCo and with ``cs.load_mjcf`` and checks that this
+model's mass matrix, bias forces and passive forces agree with MuJoCo's at random states
+(to ~1e-12).
+
+Model (`walker_model`; every number is Gymnasium's unless said otherwise)
+---------------------------------------------------------------------------
+Seven capsules, a torso and two legs of thigh - shin - foot, in the x-z plane; gravity
+9.81 m/s^2 along -z. Masses and inertias are MuJoCo's ``inertiafromgeom``: uniform density
+1000 kg/m^3 over each capsule (a cylinder plus two hemispheres, `capsule_inertia`).
+
+| link (ours)       | Gymnasium body    | radius | axis length | mass (kg) | axis       |
+|-------------------|-------------------|--------|-------------|-----------|------------|
+| torso             | torso             | 0.05 m | 0.40 m      | 3.6652    | vertical   |
+| thigh_r, thigh_l  | thigh, thigh_left | 0.05 m | 0.45 m      | 4.0579    | vertical   |
+| shin_r, shin_l    | leg, leg_left     | 0.04 m | 0.50 m      | 2.7814    | vertical   |
+| foot_r, foot_l    | foot, foot_left   | 0.06 m | 0.20 m      | 3.1667    | horizontal |
+
+Total 23.677 kg. Principal inertias about the capsule centres (kg m^2): torso (0.069246,
+0.069246, 0.004451), thigh (0.093299, 0.093299, 0.004941), shin (0.072303, 0.072303,
+0.002182), foot (0.023998, 0.023998, 0.005374) (the last entry about the capsule axis).
+
+Frames and joints at ``q = 0`` (standing straight, torso centre at ``root_z`` above the
+ground, world x forward; cstorm puts each link frame at its joint's anchor):
+
+- passive planar base on the torso centre: ``root_x`` (prismatic x), ``root_z``
+  (prismatic z), ``root_pitch`` (revolute about +y; a positive pitch tips the torso's top
+  forward, +x), Gymnasium's ``rootx, rootz, rooty`` (``q`` equals MuJoCo's ``qpos``;
+  ``root_z`` is the torso centre's height). No armature, damping or limits on the base.
+- ``hip_r`` / ``hip_l`` (Gymnasium ``thigh_joint`` / ``thigh_left_joint``): torso ->
+  thigh at the torso's lower end-sphere centre (0, 0, -0.2); thigh capsule centre 0.225 m
+  below the hip.
+- ``knee_r`` / ``knee_l`` (``leg_joint`` / ``leg_left_joint``): thigh -> shin, 0.45 m
+  below the hip; shin capsule centre 0.25 m below the knee.
+- ``ankle_r`` / ``ankle_l`` (``foot_joint`` / ``foot_left_joint``): shin -> foot, 0.5 m
+  below the knee (the shin capsule's lower end-sphere centre). The foot capsule lies along
+  x at ankle height from the ankle forward: heel end-sphere centre at the ankle, toe
+  end-sphere centre 0.2 m ahead; foot CoM 0.1 m ahead of the ankle.
+- The six hinges turn about -y (MuJoCo ``axis="0 -1 0"``): a positive angle turns the
+  child's points below the joint forward (+x) and its points ahead of the joint up. So
+  a hip at a negative angle swings its thigh back, a knee bends by going negative (the
+  shin swings back) and a positive ankle angle lifts the toe (dorsiflexion). Ranges
+  (Gymnasium's): hips [-150, 0] deg, knees [-150, 0] deg, ankles [-45, 45] deg. ``q = 0``
+  is the upper limit of hips and knees: a hip cannot swing its thigh forward of the
+  torso's axis, so a walking robot leans its torso forward (positive pitch).
+- Armature 0.01 kg m^2 and viscous damping 0.1 N m s/rad on each hinge (Gymnasium's
+  ``<default>``; the motor also supplies the damping torque). Effort limit 100 N m
+  (motor ``gear = 100``, ``ctrlrange = [-1, 1]``). No velocity limits (Gymnasium has none).
+- Standing straight, the ankles are 1.15 m below the torso centre and the foot capsules'
+  undersides 1.21 m below it (Gymnasium starts the torso at 1.25 m).
+
+Contact (`walker_contact`, not Gymnasium's soft constraints): cstorm's smooth penalty law
+on the two end spheres of every capsule against the ground (14 contact points). DESIGN.md's
+tumbler values (k = 5e3 N/m, c = 100 N s/m for 3 kg) scaled by the mass ratio 23.7 / 3 ~ 8
+(keeps the per-kilogram stiffness and the damping ratio): ``k = 4e4 N/m``, ``c = 800 N s/m``,
+``d_on = 0.01 m``, ``d_off = 0``, ``eps = 0.01 N``, friction ``mu = 0.9`` on every capsule
+(Gymnasium's body friction; its left foot has 1.9, which only stiffens the friction damper
+``1.5 mu N / v_max``), ``v_max = 0.1 m/s``. With ``d_on > 0`` a foot at rest floats a few
+millimetres above the ground (the force ramp starts at ``d_on``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+from ..errors import ProblemError
+from ..geometry.shapes import Capsule
+from ..model.builder import ModelBuilder
+from ..optimize.constraints import Constraint
+from ..optimize.costs import resolve
+
+DENSITY = 1000.0  # kg/m^3, MuJoCo's default geom density
+
+# (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
+WALKER = dict(
+    torso=dict(radius=0.05, length=0.40),
+    thigh=dict(radius=0.05, length=0.45),
+    shin=dict(radius=0.04, length=0.50),
+    foot=dict(radius=0.06, length=0.20),
+    foot_offset=0.10,  # foot capsule centre ahead of the ankle, m
+    hip=dict(lower=-math.radians(150), upper=0.0),
+    knee=dict(lower=-math.radians(150), upper=0.0),
+    ankle=dict(lower=-math.radians(45), upper=math.radians(45)),
+    effort=100.0,  # N m: gear 100 x ctrlrange 1
+    armature=0.01,  # kg m^2
+    damping=0.1,  # N m s/rad
+)
+
+SIDES = ("r", "l")
+ACTIVE = ("hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l")
+
+
+def capsule_inertia(radius, length, density=DENSITY):
+    """Mass (kg) and principal inertias ``(I_perp, I_perp, I_axial)`` (kg m^2, about the
+    centre, axis along z) of a solid capsule: a cylinder of ``length`` plus two
+    hemispheres of ``radius``, uniform ``density`` (MuJoCo's ``inertiafromgeom``)."""
+    r, h = float(radius), float(length)
+    mc = density * math.pi * r * r * h
+    ms = density * 4.0 / 3.0 * math.pi * r ** 3
+    # the two hemispheres about the capsule centre: each 83/320 m r^2 about its own CoM,
+    # which lies 3r/8 from its flat face, i.e. h/2 + 3r/8 from the centre
+    perp = mc * (3 * r * r + h * h) / 12.0 + ms * (2 * r * r / 5 + h * h / 4 + 3 * r * h / 8)
+    axial = mc * r * r / 2 + ms * 2 * r * r / 5
+    return mc + ms, (perp, perp, axial)
+
+
+def walker_model(armature: float | None = None, damping: float | None = None, effort: float | None = None,
+                 hip_upper: float | None = None):
+    """The Gymnasium walker (see the module docstring for every number). Keyword
+    arguments override Gymnasium's armature (kg m^2), damping (N m s/rad), effort limit
+    (N m) and the hips' upper limit (rad, Gymnasium 0). Joints: ``root_x, root_z,
+    root_pitch, hip_r, knee_r, ankle_r, hip_l, knee_l, ankle_l`` (MuJoCo's order); geoms
+    ``torso_geom``, ``{thigh,shin,foot}_{r,l}_geom``; frames ``heel_{r,l}``,
+    ``toe_{r,l}`` (the foot capsules' end-sphere centres)."""
+    P = WALKER
+    arm = P["armature"] if armature is None else float(armature)
+    damp = P["damping"] if damping is None else float(damping)
+    eff = P["effort"] if effort is None else float(effort)
+    hinge = dict(axis=(0.0, -1.0, 0.0), armature=arm, damping=damp, effort=eff)
+    hip = dict(P["hip"])
+    if hip_upper is not None:
+        hip["upper"] = float(hip_upper)
+    b = ModelBuilder("walker", source="<cstorm.examples.walker.walker_model>")
+    t, th, sh, ft = P["torso"], P["thigh"], P["shin"], P["foot"]
+
+    m, I = capsule_inertia(t["radius"], t["length"])
+    b.add_link("torso", mass=m, inertia=I)
+    b.add_geom("torso", Capsule(t["radius"], t["length"]), name="torso_geom")
+    for s in SIDES:
+        m, I = capsule_inertia(th["radius"], th["length"])
+        c = (0.0, 0.0, -th["length"] / 2)
+        b.add_link(f"thigh_{s}", mass=m, com=c, inertia=I)
+        b.add_joint(f"hip_{s}", "revolute", "torso", f"thigh_{s}", xyz=(0.0, 0.0, -t["length"] / 2), **hinge, **hip)
+        b.add_geom(f"thigh_{s}", Capsule(th["radius"], th["length"]), xyz=c, name=f"thigh_{s}_geom")
+
+        m, I = capsule_inertia(sh["radius"], sh["length"])
+        c = (0.0, 0.0, -sh["length"] / 2)
+        b.add_link(f"shin_{s}", mass=m, com=c, inertia=I)
+        b.add_joint(f"knee_{s}", "revolute", f"thigh_{s}", f"shin_{s}", xyz=(0.0, 0.0, -th["length"]), **hinge,
+                    **P["knee"])
+        b.add_geom(f"shin_{s}", Capsule(sh["radius"], sh["length"]), xyz=c, name=f"shin_{s}_geom")
+
+        m, (Ip, _, Ia) = capsule_inertia(ft["radius"], ft["length"])
+        c = (P["foot_offset"], 0.0, 0.0)
+        b.add_link(f"foot_{s}", mass=m, com=c, inertia=(Ia, Ip, Ip))  # capsule axis along x
+        b.add_joint(f"ankle_{s}", "revolute", f"shin_{s}", f"foot_{s}", xyz=(0.0, 0.0, -sh["length"]), **hinge,
+                    **P["ankle"])
+        b.add_geom(f"foot_{s}", Capsule(ft["radius"], ft["length"]), xyz=c, rpy=(0.0, -math.pi / 2, 0.0),
+                   name=f"foot_{s}_geom")
+        b.add_frame(f"heel_{s}", f"foot_{s}", xyz=(P["foot_offset"] - ft["length"] / 2, 0.0, 0.0))
+        b.add_frame(f"toe_{s}", f"foot_{s}", xyz=(P["foot_offset"] + ft["length"] / 2, 0.0, 0.0))
+    return b.build(floating_base="planar")
+
+
+def standing_height():
+    """Height of the torso centre (m) when the straight walker's feet touch the ground
+    (``q = 0``, foot capsules tangent to z = 0): 1.21 m."""
+    P = WALKER
+    return P["torso"]["length"] / 2 + P["thigh"]["length"] + P["shin"]["length"] + P["foot"]["radius"]
+
+
+def walker_contact(stiffness=4e4, damping=800.0, d_on=0.01, d_off=0.0, friction=0.9, v_max=0.1):
+    """The walker's `ContactParams` (see the module docstring for the choice)."""
+    from ..contact import ContactParams
+
+    return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
+                         v_max=v_max)
+
+
+# ---------------------------------------------------------------------------------------
+# The walking problem
+# ---------------------------------------------------------------------------------------
+def _contact_d(ctx, samples):
+    """(S, k) contact distances at the constraint-grid samples (recorded by the rollout,
+    else recomputed from the sampled states)."""
+    c = samples.get("contact")
+    if c is not None:
+        return c.d
+    from ..contact import contact_forces
+
+    p = ctx.problem
+    return jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
+
+
+class SwingClearance(Constraint):
+    """Every foot swings: for each group of robot geoms (``groups``: a list of lists of
+    geom names, e.g. ``[["foot_r_geom"], ["foot_l_geom"]]``), at some instant of the
+    constraint grid all the group's contact points are at least ``clearance`` (m, or a
+    problem-parameter name) above the obstacles. No schedule: the instant is not given.
+    Smooth: per group, ``tau_time logsumexp_s(c_s / tau_time)`` (a soft max over the
+    samples) of ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a soft min over the
+    group's points at sample ``s``); the soft min is at most ``tau_points ln k`` below the
+    true min, the soft max at most ``tau_time ln S`` above the true max. One inequality
+    per group: ``soft_clearance - clearance >= 0``."""
+
+    kind = "ineq"
+
+    def __init__(self, groups, clearance, tau_points=1e-3, tau_time=2e-3, stage=0, name="swing"):
+        self.groups = [[g] if isinstance(g, str) else list(g) for g in groups]
+        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
+        self.kind, self.stage, self.name = "ineq", int(stage), name
+
+    def check(self, problem):
+        from ..contact import contact_labels
+        from ..environment import Environment, ground
+
+        env = problem.env if problem.env is not None else Environment([ground()])
+        labels = contact_labels(problem.model, env)
+        self._idx = []
+        for g in self.groups:
+            pts = [i for i, lab in enumerate(labels) if lab[0] in g]
+            if not pts:
+                raise ProblemError(f"SwingClearance: no contact points on geoms {g}; geoms with contact points: "
+                                   f"{sorted({lab[0] for lab in labels})}")
+            self._idx.append(np.array(pts, int))
+
+    def values(self, ctx, end, samples):
+        d = _contact_d(ctx, samples)
+        out = []
+        for idx in self._idx:
+            c = -self.tau_points * logsumexp(-d[:, idx] / self.tau_points, axis=1)
+            out.append(self.tau_time * logsumexp(c / self.tau_time))
+        return jnp.stack(out) - resolve(self.clearance, ctx.params)
+
+    def describe(self):
+        return {"type": "SwingClearance", "groups": self.groups, "clearance": self.clearance,
+                "tau_points": self.tau_points, "tau_time": self.tau_time, "stage": self.stage}
+
+
+def foot_flat_ankle(pitch, hip, knee):
+    """The ankle angle (rad) that keeps the foot level, given the base pitch and the hip
+    and knee angles: the hinges turn about -y and the pitch about +y, so the foot's pitch
+    in the world is ``pitch - hip - knee - ankle``."""
+    return pitch - hip - knee
+
+
+def posture(split=0.2, knee=-0.1, pitch=0.0):
+    """A double-support standing posture (the default initial guess): torso pitched by
+    ``pitch`` rad, right thigh ``split`` rad forward of the torso axis, left thigh
+    ``split`` back, both knees at ``knee`` rad, feet level; the base height puts the lower
+    foot's sole 6 mm above the ground (about where the contact springs carry the weight).
+    Returns ``q`` (9,) in the model's joint order."""
+    P = WALKER
+    t, lth, lsh, rf = P["torso"]["length"] / 2, P["thigh"]["length"], P["shin"]["length"], P["foot"]["radius"]
+    q = np.zeros(9)
+    q[2] = pitch
+    lows = []
+    for k, hip in ((3, split), (6, -split)):
+        ankle = foot_flat_ankle(pitch, hip, knee)
+        q[k: k + 3] = hip, knee, ankle
+        a1, a2 = pitch - hip, pitch - hip - knee  # world pitch of thigh and shin (about +y)
+        # ankle height below the torso centre (torso axis down, thigh, shin)
+        lows.append(t * math.cos(pitch) + lth * math.cos(a1) + lsh * math.cos(a2))
+    q[1] = max(lows) + rf + 0.006
+    return q
+
+
+FEET = (["foot_r_geom"], ["foot_l_geom"])
+
+
+def walker(speed: float = 0.8, t_final: float = 1.2, n_ctrl: int = 14, dt: float = 0.004, clearance: float = 0.03,
+           integrator: str = "rk4", contact=None, n_path_samples: int = 60, continuation=True, staged: bool = True,
+           hip_upper: float = math.radians(60.0), contact_geoms=("foot_*",)):
+    """One periodic gait cycle (two steps) of the walker at average speed ``speed`` m/s.
+
+    Robot: `walker_model` (Gymnasium's Walker2d numbers, hips' upper limit
+    ``hip_upper``, see below) with `walker_contact` on every capsule against flat ground;
+    active ``hip, knee, ankle`` of both legs (quintic B-splines, ``n_ctrl`` control points
+    each), passive planar base.
+
+    Periodic gait by a free start state (``MotionProblem(free_initial=...)``): the start
+    height, pitch, every start velocity and the active joints' start angles and velocities
+    are decision variables (offsets from the guess posture); ``root_x(0) = 0``. Equality
+    constraints: `Periodic` (the end state equals the start state, ``root_x`` aside) and
+    `AverageSpeed` (``root_x(T) - root_x(0) = speed T``).
+
+    Cost: ``integral 1/2 |tau|^2 dt`` over the six motors (N^2 m^2 s).
+
+    Inequalities: joint position limits and ``|tau| <= 100 N m`` (sampled on
+    ``n_path_samples`` grid points), and `SwingClearance`: each foot is at least
+    ``clearance`` m above the ground at some instant (each foot takes a step; when is not
+    said: no contact schedule).
+
+    Hips: Gymnasium's walker2d lets a hip only extend (range [-150, 0] deg: the thigh can
+    never swing forward of the torso's axis), so its gaits must lean the torso back. We
+    keep every other number and widen the hips' upper limit to ``hip_upper`` (default +60
+    deg, human hips flex ~120 deg) so the robot can walk upright; ``hip_upper=0`` gives
+    Gymnasium's range.
+
+    Initial guess (posture level): standing still in a double-support posture (`posture`:
+    torso upright, right thigh 0.2 rad forward, left 0.2 rad back, knees bent 0.1 rad, feet
+    level) with every joint held there for the whole cycle and zero start velocity.
+
+    Solve plan (``solve_options``): with ``continuation=True`` the speed is ramped
+    ``speed * (0.25, 0.5, 0.75, 1)`` (each stage warm-started from the last); with
+    ``staged=True`` the swing clearance is switched on after the ramp (stage 1).
+
+    Attributes added: ``problem.success_criteria(solution) -> dict`` (`walker_criteria`).
+    """
+    from ..environment import Environment, ground
+    from ..optimize import costs, constraints
+    from ..optimize.problem import MotionProblem
+
+    model = walker_model(hip_upper=hip_upper)
+    contact = walker_contact() if contact is None else contact
+    env = Environment([ground()], pairs=None if contact_geoms is None else [(g, "ground") for g in contact_geoms])
+    q0 = posture()
+    free = {"root_x": "v", "root_z": "qv", "root_pitch": "qv", **{j: "qv" for j in ACTIVE}}
+    prob = MotionProblem(
+        model, active=ACTIVE, t_final=t_final, n_ctrl=n_ctrl, dt=dt, q0=q0, env=env, contact=contact,
+        costs=[costs.TorqueSquared(weight=1.0)],
+        constraints=[
+            constraints.Periodic(exclude=("root_x",)),
+            constraints.AverageSpeed("speed"),
+            constraints.JointLimits(list(ACTIVE), velocity=False),
+            constraints.TorqueLimits(),
+            SwingClearance(FEET, "clearance", stage=1 if staged else 0),
+        ],
+        params={"speed": speed, "clearance": clearance}, integrator=integrator, n_path_samples=n_path_samples,
+        name="walker", free_initial=free,
+    )
+    if continuation is True:
+        prob.solve_options["continuation"] = {"speed": [speed * s for s in (0.25, 0.5, 0.75, 1.0)]}
+    elif continuation:
+        prob.solve_options["continuation"] = {"speed": list(continuation)}
+    d_on = float(np.max(np.asarray(contact.d_on)))
+
+    def criteria(solution):
+        return walker_criteria(prob, solution, speed=speed, d_on=d_on)
+
+    prob.success_criteria = criteria
+    return prob
+
+
+def _entry(value, tol, ok, op="<="):
+    return dict(value=float(value), tol=float(tol), op=op, ok=bool(ok))
+
+
+def _traj_d(tr):
+    c = tr.get("contact")
+    if c is None:
+        raise ProblemError("walker criteria: the solution's trajectory has no contact data")
+    if isinstance(c, dict):
+        for k in ("d", "contact/d"):
+            if k in c:
+                return np.asarray(c[k])
+        raise ProblemError(f"walker criteria: no contact distances in the trajectory (keys {sorted(c)})")
+    return np.asarray(c.d)
+
+
+def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_tol=1e-6, feas_tol=1e-6,
+                    min_swing=0.1, max_penetration=0.01):
+    """Success criteria of a walking cycle, from a `Solution`: a dict ``name -> dict(value,
+    tol, op, ok)``:
+
+    - ``feasibility``: the solver's constraint violation <= ``feas_tol``;
+    - ``periodicity``: max |end - start| over every position (``root_x`` aside) and
+      velocity (m, rad, m/s, rad/s) <= ``periodic_tol``;
+    - ``average_speed_error``: |(root_x(T) - root_x(0)) / T - speed| (m/s) <= ``speed_tol``;
+    - ``swing_time_r``, ``swing_time_l``: the longest interval (s) during which every
+      contact point of that foot is farther than ``d_on`` from the ground (the foot carries
+      no load: it takes a step) >= ``min_swing``;
+    - ``max_penetration``: the deepest any contact point went below the ground (m) <=
+      ``max_penetration`` (no limbs through the floor).
+    """
+    from ..contact import contact_labels
+
+    tr = solution.trajectory
+    m = problem.model
+    q, v, t = (np.asarray(tr[k]) for k in ("q", "v", "t"))
+    ix = m.joint_q("root_x").start
+    qe = np.delete(q[-1] - q[0], ix)
+    per = float(max(np.max(np.abs(qe)), np.max(np.abs(v[-1] - v[0]))))
+    avg = (q[-1, ix] - q[0, ix]) / (t[-1] - t[0])
+    d = _traj_d(tr)
+    labels = contact_labels(m, problem.env)
+    out = dict(
+        feasibility=_entry(solution.constraint_violation, feas_tol, solution.constraint_violation <= feas_tol),
+        periodicity=_entry(per, periodic_tol, per <= periodic_tol),
+        average_speed_error=_entry(abs(avg - speed), speed_tol, abs(avg - speed) <= speed_tol),
+    )
+    for side, geoms in zip(SIDES, FEET):
+        idx = [i for i, lab in enumerate(labels) if lab[0] in geoms]
+        air = np.all(d[:, idx] > d_on, axis=1)
+        longest, run = 0.0, 0.0
+        for k in range(1, len(t)):
+            run = run + (t[k] - t[k - 1]) if (air[k] and air[k - 1]) else 0.0
+            longest = max(longest, run)
+        out[f"swing_time_{side}"] = _entry(longest, min_swing, longest >= min_swing, op=">=")
+    pen = max(0.0, -float(np.min(d)))
+    out["max_penetration"] = _entry(pen, max_penetration, pen <= max_penetration)
+    return out
+
+
+EXAMPLES = {"walker": walker}

@@ -57,8 +57,17 @@ TUMBLER = dict(
 )
 
 
-def tumbler(floating_base: str = "planar"):
-    """The planar tumbling robot (see the module docstring for every number)."""
+def tumbler(floating_base: str = "planar", feet: bool = False):
+    """The planar tumbling robot (see the module docstring for every number).
+
+    ``feet=True`` adds two collision shapes (no extra links, no extra mass: the shapes
+    belong to the legs and arms links and their masses are in the numbers above): a
+    foot, a capsule of radius 0.03 m and axis length 0.10 m lying along x across the
+    bottom of the legs (its end spheres at x = +-0.05 m, level with the legs' end
+    sphere), and a palm, a capsule of radius 0.025 m and axis length 0.08 m lying across
+    the tip of the arms. With them, standing and a handstand rest on a 0.16 m / 0.13 m
+    wide support instead of a single rolling point, so they are statically stable.
+    """
     P = TUMBLER
     t, lg, ar = P["torso"], P["legs"], P["arms"]
     b = ModelBuilder("tumbler", source="<cstorm.robots.tumbler>")
@@ -75,6 +84,9 @@ def tumbler(floating_base: str = "planar"):
     b.add_joint("shoulder", "revolute", "torso", "arms", xyz=(0, 0, t["length"] / 2), axis=(0, 1, 0),
                 armature=P["armature"], **P["shoulder"])
     b.add_geom("arms", Capsule(ar["radius"], ar["length"]), xyz=(0, 0, ar["length"] / 2), name="arms")
+    if feet:
+        b.add_geom("legs", Capsule(lg["radius"], 0.10), xyz=(0, 0, -lg["length"]), rpy=(0, np.pi / 2, 0), name="foot")
+        b.add_geom("arms", Capsule(ar["radius"], 0.08), xyz=(0, 0, ar["length"]), rpy=(0, np.pi / 2, 0), name="palm")
     b.add_frame("feet", "legs", xyz=(0, 0, -lg["length"]))
     b.add_frame("hands", "arms", xyz=(0, 0, ar["length"]))
     return b.build(floating_base=floating_base)

@@ -1,0 +1,212 @@
+"""The paper's tumbling robot: start -> handstand -> roll -> standing -> start, as a
+`MotionSequence` of four segments, each solved from the state where the previous one
+ended, each minimizing the integral of squared active torque.
+
+Robot: `cstorm.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m / 1.5 kg,
+arms 0.25 m / 0.5 kg, capsule radii 0.03 / 0.04 / 0.025 m; hip and shoulder active,
+limits +-2.8 / +-3.0 rad, 12 / 8 N m; passive planar base ``root_x, root_z,
+root_pitch`` on the torso; a foot and a palm capsule across the ends of the legs and
+arms; every number documented there). Ground contact through the
+smooth penalty model on both end spheres of every capsule (10 contact points); no
+contact schedule is given to the optimizer.
+
+Conventions: ``root_pitch`` rotates the torso about the world y axis; positive pitch
+tips the torso's top (shoulders) towards +x, so the whole sequence is one forward
+revolution: pitch 0 (standing) -> pi (handstand) -> 3 pi / 2 (lying, rolling) -> 2 pi
+(standing again). ``hip = 0``: legs straight below the torso; ``shoulder = 0``: arms
+straight above it (overhead), ``shoulder = 3.0``: arms hanging down in front of the body
+("arms down", 3.0 rad is the joint limit; in the plane the arms overlap the torso: the
+model has no self-collision, as in the feasibility study).
+
+Contact (DESIGN.md feasibility study): ``k = 5e3 N/m, c = 100 N s/m, d_on = 0.01 m,
+d_off = 0``, smooth non-negativity ``eps = 0.01 N``, friction ``mu = 0.8`` (rubber
+hands and feet on a mat; at the draft's 0.3 the feet slide during the pike),
+``v_max = 0.1 m/s``. Resting on its foot (or palm) the robot sits where the ramped
+springs of the three level contact points carry its weight, 5.5 mm above the ground;
+the nominal postures below are placed at that height.
+
+Segments (each ``T`` seconds, RK4 at ``dt``, quintic B-splines with ``n_ctrl`` control
+points per active joint, start position/velocity from the previous segment by
+construction):
+
+1. ``handstand`` (2.0 s): from the start position (standing at rest, arms down) to a
+   balanced handstand at rest: pitch = pi, hip = shoulder = 0 (body straight, arms
+   overhead on the ground) with zero velocity of the base and of the joints (the
+   joints' end values are built into their splines). Solve plan: continuation on the
+   target pitch (0.3 ... pi) with only the pitch constraint, then the terminal
+   velocities and the torque limits (staged constraints) — the recipe the feasibility
+   study found necessary.
+2. ``roll`` (1.5 s): from the handstand, tip over forward and roll along the back:
+   at the end the torso lies on the ground (its centre lower than 0.1 m) with pitch
+   >= 3 pi / 2 - 0.2 and still rotating forwards (pitch rate >= 1 rad/s), joints
+   free.
+3. ``standing`` (2.0 s): from the roll, come up onto the feet: pitch = 2 pi,
+   hip = shoulder = 0, base at rest.
+4. ``start`` (1.5 s): from standing back to the start position: pitch = 2 pi within
+   0.05 rad, hip = 0, shoulder = 3.0 (arms down), at rest.
+
+Every segment has the torque limits (sampled) as constraints; joint position limits
+hold by construction (control points bounded by the limits; see
+`cstorm.optimize.solve.variable_bounds`).
+
+Default initial guesses (posture level only): every joint moves linearly from its
+start to its end value (segment 2: joints held), which is the optimizer's default.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import robots
+from ..contact import ContactParams
+from ..environment import Environment, ground
+from ..optimize import costs as C
+from ..optimize import constraints as K
+from ..optimize.problem import MotionProblem
+from ..optimize.sequence import MotionSequence
+
+__all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
+
+#: smooth contact parameters (see the module docstring)
+CONTACT = dict(stiffness=5e3, damping=100.0, d_on=0.01, d_off=0.0, friction=0.8, v_max=0.1, eps=0.01)
+ARMS_DOWN = 3.0  # rad, the shoulder's limit
+SEGMENTS = ("handstand", "roll", "standing", "start")
+
+
+def _rest_sink(model, n_points=3):
+    """Distance ``d`` of the supporting spheres from the ground when the whole robot rests
+    on ``n_points`` level contact points (foot or palm: its two end spheres and the
+    limb's end sphere): the root of ``n beta(d) k (d_on - d) = m g`` (bisection; the
+    force law of `cstorm.contact` at rest)."""
+    m = float(np.sum(np.asarray(model.mass)))
+    g = float(np.linalg.norm(np.asarray(model.gravity)))
+    k, d_on, d_off = CONTACT["stiffness"], CONTACT["d_on"], CONTACT["d_off"]
+
+    def force(d):
+        s = min(max((d - d_on) / (d_off - d_on), 0.0), 1.0)
+        return n_points * s * s * (3.0 - 2.0 * s) * k * (d_on - d)
+
+    lo, hi = d_off - 1.0, d_on  # force(lo) > m g >= force(hi) = 0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if force(mid) > m * g else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def start_q(model):
+    """Start position: standing on the feet at rest, arms down (``shoulder = 3.0``)."""
+    P = robots.TUMBLER
+    z = P["legs"]["length"] + P["torso"]["length"] / 2 + P["legs"]["radius"] + _rest_sink(model)
+    return np.array([0.0, z, 0.0, 0.0, ARMS_DOWN])
+
+
+def standing_q(model, pitch=2 * np.pi):
+    """Standing on the feet, arms overhead, torso upright at ``pitch``."""
+    q = start_q(model)
+    q[2], q[4] = pitch, 0.0
+    return q
+
+
+def handstand_q(model):
+    """Balanced handstand: pitch pi, body straight, arms overhead on the ground."""
+    P = robots.TUMBLER
+    z = P["arms"]["length"] + P["torso"]["length"] / 2 + P["arms"]["radius"] + _rest_sink(model)
+    return np.array([0.0, z, np.pi, 0.0, 0.0])
+
+
+def _env_contact():
+    return Environment([ground()]), ContactParams(**CONTACT)
+
+
+def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: float | None = None, q0=None,
+                    v0=None, model=None):
+    """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
+
+    Args:
+      name: one of ``SEGMENTS``.
+      n_ctrl: control points per active joint. dt: RK4 step (s).
+      t_final: duration (s; default per segment).
+      q0, v0: start state (default: the segment's nominal start posture at rest; in a
+        sequence the previous segment's end state replaces it).
+    """
+    model = robots.tumbler(feet=True) if model is None else model
+    env, contact = _env_contact()
+    common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=40)
+    torque = K.TorqueLimits(stage=1, name="torque limits")
+    if name == "handstand":
+        T = 2.0 if t_final is None else t_final
+        q0 = start_q(model) if q0 is None else q0
+        cons = [K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch"),
+                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
+                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
+                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
+        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
+                          rest_end=True, constraints=cons, params={"pitch": np.pi}, **common)
+        p.solve_options["continuation"] = {"pitch": [0.3, 0.6, 1.0, 1.4, 1.8, 2.2, 2.6, 2.9, np.pi]}
+    elif name == "roll":
+        T = 1.5 if t_final is None else t_final
+        q0 = handstand_q(model) if q0 is None else q0
+        cons = [K.TerminalConstraint(lambda q, v, prm: q[2] - prm["pitch"], kind="ineq", stage=0,
+                                     name="pitch past lying"),
+                K.TerminalConstraint(lambda q, v, prm: 0.1 - q[1], kind="ineq", stage=0, name="torso on ground"),
+                K.TerminalConstraint(lambda q, v, prm: v[2] - 1.0, kind="ineq", stage=1, name="still rolling"),
+                torque]
+        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, constraints=cons,
+                          params={"pitch": 1.5 * np.pi - 0.2}, **common)
+    elif name == "standing":
+        T = 2.0 if t_final is None else t_final
+        if q0 is None:
+            raise ValueError("tumbler_segment('standing') needs q0/v0 (the end of the roll)")
+        cons = [K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch"),
+                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
+                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
+                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
+        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
+                          rest_end=True, constraints=cons, params={"pitch": 2 * np.pi}, **common)
+    elif name == "start":
+        T = 1.5 if t_final is None else t_final
+        q0 = standing_q(model) if q0 is None else q0
+        cons = [K.TerminalState("root_pitch", q="pitch", kind="ineq", tol=0.05, stage=0, name="pitch"),
+                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
+                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
+                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
+        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0,
+                          q_final_active={"hip": 0.0, "shoulder": ARMS_DOWN}, rest_end=True, constraints=cons,
+                          params={"pitch": 2 * np.pi}, **common)
+    else:
+        raise ValueError(f"unknown tumbler segment {name!r}; segments are {SEGMENTS}")
+    p.success_criteria = _criteria(name)
+    return p
+
+
+def _criteria(name):
+    """Success criteria of a segment (checked on the solution by `cstorm.report`)."""
+    feas = {"type": "constraint_violation", "tol": 1e-6, "name": "feasibility"}
+    rest = [{"type": "final_v", "joint": j, "target": 0.0, "tol": 1e-3, "name": f"{j} at rest"}
+            for j in ("root_x", "root_z", "root_pitch")]
+    if name == "handstand":
+        return [feas, {"type": "final_q", "joint": "root_pitch", "target": np.pi, "tol": 1e-3, "name": "inverted"},
+                *rest]
+    if name == "roll":
+        return [feas, {"type": "displacement", "joint": "root_pitch", "min": 0.5 * np.pi - 0.2,
+                       "name": "rolled forward (rad)"}]
+    if name == "standing":
+        return [feas, {"type": "final_q", "joint": "root_pitch", "target": 2 * np.pi, "tol": 1e-3, "name": "upright"},
+                *rest]
+    return [feas, {"type": "final_q", "joint": "root_pitch", "target": 2 * np.pi, "tol": 0.05, "name": "upright"},
+            {"type": "final_q", "joint": "shoulder", "target": ARMS_DOWN, "tol": 1e-6, "name": "arms down"}, *rest]
+
+
+def tumbler(n_ctrl: int = 12, dt: float = 4e-3):
+    """The four-segment tumbler `MotionSequence` (see the module docstring)."""
+    model = robots.tumbler(feet=True)
+    segs = []
+    for name in SEGMENTS:
+        kw = {}
+        if name == "standing":  # nominal start, replaced by the roll's end in the sequence
+            kw = dict(q0=handstand_q(model) + np.array([0.0, -0.35, 0.5 * np.pi, 0.0, 0.0]), v0=np.zeros(5))
+        segs.append(tumbler_segment(name, n_ctrl=n_ctrl, dt=dt, model=model, **kw))
+    return MotionSequence(segs, name="tumbler")
+
+
+EXAMPLES = {"tumbler": tumbler}

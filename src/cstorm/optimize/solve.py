@@ -177,7 +177,10 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
         cstorm[ipopt]``).
       x0: initial decision vector (default ``problem.x0``).
       continuation: ``{param: [values...]}``, a ramp of problem parameters, one stage per
-        value (defaults to ``problem.solve_options["continuation"]`` if set).
+        value (defaults to ``problem.solve_options["continuation"]`` if set). Every
+        stage but the last only warm-starts the next: ``problem.solve_options`` may set
+        ``"intermediate_tol"`` and ``"intermediate_max_iter"`` to loosen them (default:
+        ``tol`` and ``max_iter``).
       schedule: explicit plan ``[{"params": {...}, "level": k}, ...]``.
       max_iter: iteration limit per stage. tol: optimality tolerance (SLSQP ``ftol``,
         IPOPT ``tol``). constraint_tol: largest constraint violation counted as success.
@@ -265,10 +268,14 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
         ev.fscale = _objective_scale(objective_scale, ev, x)
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
+            # intermediate stages only warm-start the next one: the problem may loosen them
+            last = si == len(plan) - 1
+            s_tol = tol if last else problem.solve_options.get("intermediate_tol", tol)
+            s_it = max_iter if last else min(max_iter, problem.solve_options.get("intermediate_max_iter", max_iter))
             if method == "slsqp":
-                x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, max_iter, tol, options)
+                x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
             else:
-                x, solver_ok, message, nit = _run_ipopt(ev, x, tracker, si, params_now, max_iter, tol, options)
+                x, solver_ok, message, nit = _run_ipopt(ev, x, tracker, si, params_now, s_it, s_tol, options)
         except KeyboardInterrupt:
             interrupted = True
             message = f"interrupted by the user in stage {si} (KeyboardInterrupt); returning the best iterate so far"

@@ -112,7 +112,8 @@ def tiny():
     return MotionProblem(
         model, active=["elbow"], t_final=1.0, n_ctrl=7, dt=0.05, q0=np.array([0.3, -0.2]),
         v0=np.array([0.1, 0.5]), costs=[costs.TorqueSquared()],
-        constraints=[constraints.Periodic(), constraints.Periodic(exclude="shoulder", which="v"),
+        constraints=[constraints.Periodic(), constraints.Periodic(exclude="shoulder"),
+                     constraints.Periodic(exclude="shoulder", exclude_velocity="shoulder", which="v"),
                      constraints.AverageSpeed("w", joint="shoulder", kind="ineq")],
         params={"w": 0.1}, free_initial={"shoulder": "qv", "elbow": "qv"}, name="tiny")
 
@@ -133,7 +134,9 @@ def test_free_initial_layout_and_start_state(tiny):
     np.testing.assert_allclose(np.asarray(tr["v"][0]), [0.3, 0.2], atol=1e-12)
     r = p.evaluate(jnp.asarray(x), data)
     qT, vT = np.asarray(tr["q"][-1]), np.asarray(tr["v"][-1])
-    expect_eq = np.concatenate([qT - [0.4, -0.25], vT - [0.3, 0.2], [vT[1] - 0.2]])
+    # Periodic(): q, v of both; exclude="shoulder": q elbow, v of both (an excluded
+    # position's velocity stays periodic); which="v" without the shoulder: v elbow
+    expect_eq = np.concatenate([qT - [0.4, -0.25], vT - [0.3, 0.2], [qT[1] + 0.25], vT - [0.3, 0.2], [vT[1] - 0.2]])
     np.testing.assert_allclose(np.asarray(r["c_eq"]), expect_eq, atol=1e-12)
     np.testing.assert_allclose(np.asarray(r["c_in"]), [(qT[0] - 0.4) / 1.0 - 0.1], atol=1e-12)
     assert p.describe()["free_initial"] == {"shoulder": "qv", "elbow": "qv"}
@@ -195,7 +198,7 @@ def test_free_initial_validation():
         MotionProblem(model, **kw, constraints=[constraints.Periodic(swap=[("shoulder", "elbow"),
                                                                              ("elbow", "shoulder")])])
     with pytest.raises(ProblemError, match="every joint is excluded"):
-        MotionProblem(model, **kw, constraints=[constraints.Periodic(exclude=("shoulder", "elbow"))])
+        MotionProblem(model, **kw, constraints=[constraints.Periodic(exclude=("shoulder", "elbow"), which="q")])
     with pytest.raises(ProblemError, match="not 1-DoF|no joint"):
         MotionProblem(model, **kw, constraints=[constraints.AverageSpeed(1.0, joint="x")])
     a = MotionProblem(model, **kw)

@@ -266,44 +266,69 @@ def posture(split=0.2, knee=-0.1, pitch=0.0):
 
 
 FEET = (["foot_r_geom"], ["foot_l_geom"])
+SWAP = (("hip_r", "hip_l"), ("knee_r", "knee_l"), ("ankle_r", "ankle_l"))
+SPLIT = 0.2  # rad, the guess posture's hip angles (right forward, left back)
 
 
-def walker(speed: float = 0.8, t_final: float = 1.2, n_ctrl: int = 14, dt: float = 0.004, clearance: float = 0.03,
-           integrator: str = "rk4", contact=None, n_path_samples: int = 60, continuation=True, staged: bool = True,
-           hip_upper: float = math.radians(60.0), contact_geoms=("foot_*",)):
-    """One periodic gait cycle (two steps) of the walker at average speed ``speed`` m/s.
+def _mirror(q):
+    """Left and right legs exchanged in a (..., 9) array of q or v."""
+    q = np.array(q, copy=True)
+    q[..., 3:6], q[..., 6:9] = np.array(q[..., 6:9]), np.array(q[..., 3:6])
+    return q
 
-    Robot: `walker_model` (Gymnasium's Walker2d numbers, hips' upper limit
-    ``hip_upper``, see below) with `walker_contact` on every capsule against flat ground;
-    active ``hip, knee, ankle`` of both legs (quintic B-splines, ``n_ctrl`` control points
-    each), passive planar base.
 
-    Periodic gait by a free start state (``MotionProblem(free_initial=...)``): the start
-    height, pitch, every start velocity and the active joints' start angles and velocities
-    are decision variables (offsets from the guess posture); ``root_x(0) = 0``. Equality
-    constraints: `Periodic` (the end state equals the start state, ``root_x`` aside) and
-    `AverageSpeed` (``root_x(T) - root_x(0) = speed T``).
+def walker(speed: float = 0.8, period: float = 1.2, n_ctrl: int = 9, dt: float = 0.005, clearance: float = 0.03,
+           half_cycle: bool = True, integrator: str = "rk4", contact=None, n_path_samples: int = 30,
+           continuation=None, staged: bool = False, hip_upper: float = math.radians(60.0),
+           contact_geoms=("foot_*",)):
+    """A periodic walking gait of the walker at average speed ``speed`` m/s, gait cycle
+    (two steps) ``period`` s.
+
+    Robot: `walker_model` (Gymnasium's Walker2d numbers, hips' upper limit ``hip_upper``,
+    see below) with `walker_contact` between the feet (``contact_geoms``, glob patterns;
+    None: every capsule) and flat ground; active ``hip, knee, ankle`` of both legs
+    (quintic B-splines, ``n_ctrl`` control points each), passive planar base.
+
+    Periodic by a free start state (``MotionProblem(free_initial=...)``): the start
+    height, pitch, every start velocity and the active joints' start angles and
+    velocities are decision variables (offsets from the guess posture); ``root_x(0) = 0``.
+
+    - ``half_cycle=True`` (default; mirror symmetry, half the work): the horizon is one
+      step, ``period / 2``, and the end state equals the start state with the legs
+      exchanged (`constraints.Periodic` with ``swap``; ``root_x`` aside). The left foot
+      swings in this step (a naming convention: the guess starts with the left leg
+      behind); the right foot swings in the mirrored second step. `full_cycle` assembles
+      the two steps.
+    - ``half_cycle=False``: the horizon is the whole cycle, ``period``, and the end state
+      equals the start state (`constraints.Periodic`); both feet must swing.
+
+    Equality constraints: the periodicity above and `AverageSpeed` (``root_x(T) -
+    root_x(0) = speed T``). Inequalities: joint position limits and ``|tau| <= 100 N m``
+    (sampled on ``n_path_samples`` grid points), and `SwingClearance`: the swinging foot
+    (each foot, for the full cycle) is at least ``clearance`` m above the ground at some
+    instant; when is not said (no contact schedule). Variable bounds (``x_bounds``, used
+    by `solve`): the splines' free control points within the joint limits, the start
+    offsets keep the active joints within their limits, the start height within +-0.2 m,
+    pitch within +-0.5 rad, start velocities within +-3 m/s or rad/s (base) and +-10 rad/s
+    (joints) of the guess.
 
     Cost: ``integral 1/2 |tau|^2 dt`` over the six motors (N^2 m^2 s).
-
-    Inequalities: joint position limits and ``|tau| <= 100 N m`` (sampled on
-    ``n_path_samples`` grid points), and `SwingClearance`: each foot is at least
-    ``clearance`` m above the ground at some instant (each foot takes a step; when is not
-    said: no contact schedule).
 
     Hips: Gymnasium's walker2d lets a hip only extend (range [-150, 0] deg: the thigh can
     never swing forward of the torso's axis), so its gaits must lean the torso back. We
     keep every other number and widen the hips' upper limit to ``hip_upper`` (default +60
-    deg, human hips flex ~120 deg) so the robot can walk upright; ``hip_upper=0`` gives
-    Gymnasium's range.
+    deg, human hips flex ~120 deg) so that the robot can walk upright; ``hip_upper=0``
+    gives Gymnasium's range.
 
-    Initial guess (posture level): standing still in a double-support posture (`posture`:
-    torso upright, right thigh 0.2 rad forward, left 0.2 rad back, knees bent 0.1 rad, feet
-    level) with every joint held there for the whole cycle and zero start velocity.
+    Initial guess (posture level): the double-support posture `posture` (torso upright,
+    right thigh 0.2 rad forward of the torso axis, left 0.2 rad back, knees bent 0.1 rad,
+    feet level, soles 6 mm up) at rest; the hips move linearly to the mirrored posture at
+    the end of the step (half cycle) or there and back (full cycle), every other joint
+    held. Nothing says when or how a foot lifts.
 
-    Solve plan (``solve_options``): with ``continuation=True`` the speed is ramped
-    ``speed * (0.25, 0.5, 0.75, 1)`` (each stage warm-started from the last); with
-    ``staged=True`` the swing clearance is switched on after the ramp (stage 1).
+    Solve plan (``solve_options``): ``continuation`` (None: none; True: the speed ramped
+    ``speed * (0.5, 1)``; or a list of speeds); with ``staged=True`` the swing clearance
+    is switched on after the others (stage 1).
 
     Attributes added: ``problem.success_criteria(solution) -> dict`` (`walker_criteria`).
     """
@@ -314,23 +339,45 @@ def walker(speed: float = 0.8, t_final: float = 1.2, n_ctrl: int = 14, dt: float
     model = walker_model(hip_upper=hip_upper)
     contact = walker_contact() if contact is None else contact
     env = Environment([ground()], pairs=None if contact_geoms is None else [(g, "ground") for g in contact_geoms])
-    q0 = posture()
+    q0 = posture(split=SPLIT)
+    t_final = period / 2 if half_cycle else period
     free = {"root_x": "v", "root_z": "qv", "root_pitch": "qv", **{j: "qv" for j in ACTIVE}}
+    ts = np.linspace(0.0, t_final, 4 * n_ctrl)
+    ramp = 1.0 - 2.0 * ts / t_final if half_cycle else np.abs(1.0 - 2.0 * ts / t_final) * 2.0 - 1.0
+    guess = {"hip_r": (ts, SPLIT * ramp), "hip_l": (ts, -SPLIT * ramp)}
+    swing = [FEET[1]] if half_cycle else list(FEET)
     prob = MotionProblem(
         model, active=ACTIVE, t_final=t_final, n_ctrl=n_ctrl, dt=dt, q0=q0, env=env, contact=contact,
         costs=[costs.TorqueSquared(weight=1.0)],
         constraints=[
-            constraints.Periodic(exclude=("root_x",)),
+            constraints.Periodic(exclude=("root_x",), swap=SWAP if half_cycle else None),
             constraints.AverageSpeed("speed"),
             constraints.JointLimits(list(ACTIVE), velocity=False),
             constraints.TorqueLimits(),
-            SwingClearance(FEET, "clearance", stage=1 if staged else 0),
+            SwingClearance(swing, "clearance", stage=1 if staged else 0),
         ],
         params={"speed": speed, "clearance": clearance}, integrator=integrator, n_path_samples=n_path_samples,
-        name="walker", free_initial=free,
+        name="walker", free_initial=free, initial_guess=guess,
     )
+    prob.half_cycle = bool(half_cycle)
+    # variable bounds (see the docstring): splines within the limits, start offsets boxed
+    from ..optimize.solve import variable_bounds
+
+    lb, ub = variable_bounds(prob)
+    n0 = prob.n_spline_vars
+    lo, hi = np.asarray(model.q_lower), np.asarray(model.q_upper)
+    dq_idx, dv_idx = prob._fi_dq, prob._fi_dv  # v (= q, planar model) indices, in x order
+    for k, i in enumerate(dq_idx):
+        if i in (1, 2):
+            lb[n0 + k], ub[n0 + k] = (-0.2, 0.2) if i == 1 else (-0.5, 0.5)
+        else:
+            lb[n0 + k], ub[n0 + k] = lo[i] - q0[i], hi[i] - q0[i]
+    for k, i in enumerate(dv_idx):
+        w = 3.0 if i < 3 else 10.0
+        lb[n0 + len(dq_idx) + k], ub[n0 + len(dq_idx) + k] = -w, w
+    prob.x_bounds = (lb, ub)
     if continuation is True:
-        prob.solve_options["continuation"] = {"speed": [speed * s for s in (0.25, 0.5, 0.75, 1.0)]}
+        prob.solve_options["continuation"] = {"speed": [speed * s for s in (0.5, 1.0)]}
     elif continuation:
         prob.solve_options["continuation"] = {"speed": list(continuation)}
     d_on = float(np.max(np.asarray(contact.d_on)))
@@ -340,6 +387,30 @@ def walker(speed: float = 0.8, t_final: float = 1.2, n_ctrl: int = 14, dt: float
 
     prob.success_criteria = criteria
     return prob
+
+
+def full_cycle(problem, solution):
+    """The whole gait cycle from a solution: dict ``t (M,)``, ``q (M, 9)``, ``v (M, 9)``,
+    ``d (M, k)`` (contact distances; a full-cycle solution's own arrays). For a
+    half-cycle solution the second step is the first with the legs exchanged, shifted
+    forward by the step length and in time by the step duration (its first sample, the
+    first step's last, is not repeated); contact points are exchanged foot for foot."""
+    from ..contact import contact_labels
+
+    tr = solution.trajectory
+    t, q, v = (np.asarray(tr[k]) for k in ("t", "q", "v"))
+    d = _traj_d(tr)
+    if not getattr(problem, "half_cycle", False):
+        return dict(t=t, q=q, v=v, d=d)
+    labels = contact_labels(problem.model, problem.env)
+    perm = []
+    for geom, obs, feat in labels:
+        other = geom.replace("_r_", "_X_").replace("_l_", "_r_").replace("_X_", "_l_")
+        perm.append(labels.index((other, obs, feat)))
+    q2, v2 = _mirror(q[1:]), _mirror(v[1:])
+    q2[:, 0] += q[-1, 0] - q[0, 0]
+    return dict(t=np.concatenate([t, t[1:] + t[-1]]), q=np.concatenate([q, q2]), v=np.concatenate([v, v2]),
+                d=np.concatenate([d, d[1:][:, perm]]))
 
 
 def _entry(value, tol, ok, op="<="):
@@ -360,44 +431,47 @@ def _traj_d(tr):
 
 def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_tol=1e-6, feas_tol=1e-6,
                     min_swing=0.1, max_penetration=0.01):
-    """Success criteria of a walking cycle, from a `Solution`: a dict ``name -> dict(value,
-    tol, op, ok)``:
+    """Success criteria of a walking gait, from a `Solution` (of `walker`, half or full
+    cycle): a dict ``name -> dict(value, tol, op, ok)``:
 
     - ``feasibility``: the solver's constraint violation <= ``feas_tol``;
     - ``periodicity``: max |end - start| over every position (``root_x`` aside) and
-      velocity (m, rad, m/s, rad/s) <= ``periodic_tol``;
-    - ``average_speed_error``: |(root_x(T) - root_x(0)) / T - speed| (m/s) <= ``speed_tol``;
-    - ``swing_time_r``, ``swing_time_l``: the longest interval (s) during which every
-      contact point of that foot is farther than ``d_on`` from the ground (the foot carries
-      no load: it takes a step) >= ``min_swing``;
+      velocity (m, rad, m/s, rad/s) of the whole cycle (for a half cycle: the end state
+      against the start state with the legs exchanged) <= ``periodic_tol``;
+    - ``average_speed_error``: |root_x travelled / time - speed| (m/s) <= ``speed_tol``;
+    - ``swing_time_r``, ``swing_time_l``: the longest interval (s) of the cycle during
+      which every contact point of that foot is farther than ``d_on`` from the ground (no
+      load: the foot takes a step) >= ``min_swing``;
     - ``max_penetration``: the deepest any contact point went below the ground (m) <=
-      ``max_penetration`` (no limbs through the floor).
+      ``max_penetration`` (no feet through the floor).
     """
     from ..contact import contact_labels
 
     tr = solution.trajectory
-    m = problem.model
     q, v, t = (np.asarray(tr[k]) for k in ("q", "v", "t"))
-    ix = m.joint_q("root_x").start
-    qe = np.delete(q[-1] - q[0], ix)
-    per = float(max(np.max(np.abs(qe)), np.max(np.abs(v[-1] - v[0]))))
+    ix = problem.model.joint_q("root_x").start
+    half = getattr(problem, "half_cycle", False)
+    qe = np.delete((_mirror(q[0]) if half else q[0]) - q[-1], ix)  # every velocity, root_x's too
+    ve = (_mirror(v[0]) if half else v[0]) - v[-1]
+    per = float(max(np.max(np.abs(qe)), np.max(np.abs(ve))))
     avg = (q[-1, ix] - q[0, ix]) / (t[-1] - t[0])
-    d = _traj_d(tr)
-    labels = contact_labels(m, problem.env)
+    cyc = full_cycle(problem, solution)
+    labels = contact_labels(problem.model, problem.env)
     out = dict(
         feasibility=_entry(solution.constraint_violation, feas_tol, solution.constraint_violation <= feas_tol),
         periodicity=_entry(per, periodic_tol, per <= periodic_tol),
         average_speed_error=_entry(abs(avg - speed), speed_tol, abs(avg - speed) <= speed_tol),
     )
+    tc = cyc["t"]
     for side, geoms in zip(SIDES, FEET):
         idx = [i for i, lab in enumerate(labels) if lab[0] in geoms]
-        air = np.all(d[:, idx] > d_on, axis=1)
+        air = np.all(cyc["d"][:, idx] > d_on, axis=1)
         longest, run = 0.0, 0.0
-        for k in range(1, len(t)):
-            run = run + (t[k] - t[k - 1]) if (air[k] and air[k - 1]) else 0.0
+        for k in range(1, len(tc)):
+            run = run + (tc[k] - tc[k - 1]) if (air[k] and air[k - 1]) else 0.0
             longest = max(longest, run)
         out[f"swing_time_{side}"] = _entry(longest, min_swing, longest >= min_swing, op=">=")
-    pen = max(0.0, -float(np.min(d)))
+    pen = max(0.0, -float(np.min(cyc["d"])))
     out["max_penetration"] = _entry(pen, max_penetration, pen <= max_penetration)
     return out
 

@@ -246,9 +246,10 @@ class ContactDistance(Constraint):
 
 
 class Periodic(Constraint):
-    """The motion ends where it started: ``q_j(T) = q_j(0)`` and ``v_j(T) = v_j(0)`` for
-    every joint ``j`` except those in ``exclude`` (e.g. ``("root_x",)``: a walker ends one
-    stride ahead). With ``swap`` (pairs of joint names, e.g. ``[("hip_l", "hip_r"),
+    """The motion ends where it started: ``q_j(T) = q_j(0)`` for every joint ``j`` except
+    those in ``exclude`` (e.g. ``("root_x",)``: a walker ends one stride ahead) and
+    ``v_j(T) = v_j(0)`` for every joint except those in ``exclude_velocity`` (default
+    none: an excluded position's velocity is still periodic). With ``swap`` (pairs of joint names, e.g. ``[("hip_l", "hip_r"),
     ...]``) the end state of each joint of a pair equals the start state of the other (a
     mirror-symmetric half cycle of a planar biped: one step, left and right exchanged);
     the joints of a pair must have the same type. ``which``: ``"q"``, ``"v"`` or ``"qv"``
@@ -261,8 +262,10 @@ class Periodic(Constraint):
     start variables a periodic motion at nonzero speed cannot be found by single
     shooting from a fixed start."""
 
-    def __init__(self, exclude=(), swap=None, which="qv", velocity_scale=1.0, stage=0, name=None):
+    def __init__(self, exclude=(), swap=None, which="qv", velocity_scale=1.0, exclude_velocity=(), stage=0,
+                 name=None):
         self.exclude = (exclude,) if isinstance(exclude, str) else tuple(exclude)
+        self.exclude_velocity = (exclude_velocity,) if isinstance(exclude_velocity, str) else tuple(exclude_velocity)
         self.swap = None if swap is None else [tuple(p) for p in swap]
         if which not in ("q", "v", "qv"):
             raise ProblemError(f"Periodic: which must be 'q', 'v' or 'qv', got {which!r}")
@@ -271,10 +274,10 @@ class Periodic(Constraint):
 
     def check(self, problem):
         m = problem.model
-        for n in self.exclude:
+        for n in self.exclude + self.exclude_velocity:
             if n not in m.joint_names:
-                raise ProblemError(f"Periodic: exclude names {n!r}, which is not a joint; joints are "
-                                   f"{list(m.joint_names)}")
+                raise ProblemError(f"Periodic: exclude/exclude_velocity names {n!r}, which is not a joint; joints "
+                                   f"are {list(m.joint_names)}")
         partner = {n: n for n in m.joint_names}
         for pair in self.swap or []:
             if len(pair) != 2 or any(n not in m.joint_names for n in pair):
@@ -287,26 +290,26 @@ class Periodic(Constraint):
             if type(ja) is not type(jb):
                 raise ProblemError(f"Periodic: swapped joints {a!r} and {b!r} have different types")
             partner[a], partner[b] = b, a
-        self._pairs = tuple((n, partner[n]) for n in m.joint_names if n not in self.exclude)
-        if not self._pairs:
+        self._q_pairs = tuple((n, partner[n]) for n in m.joint_names if n not in self.exclude) \
+            if "q" in self.which else ()
+        self._v_pairs = tuple((n, partner[n]) for n in m.joint_names if n not in self.exclude_velocity) \
+            if "v" in self.which else ()
+        if not (self._q_pairs or self._v_pairs):
             raise ProblemError("Periodic: every joint is excluded")
 
     def values(self, ctx, end, samples):
         m = ctx.model
         q0, v0 = samples["q"][0], samples["v"][0]
-        qe, ve = [], []
-        for j, p in self._pairs:
-            if "q" in self.which:
-                qe.append(joint_error(m, j, end["q"][m.joint_q(j)], q0[m.joint_q(p)]))
-            if "v" in self.which:
-                ve.append(self.velocity_scale * (end["v"][m.joint_v(j)] - v0[m.joint_v(p)]))
+        qe = [joint_error(m, j, end["q"][m.joint_q(j)], q0[m.joint_q(p)]) for j, p in self._q_pairs]
+        ve = [self.velocity_scale * (end["v"][m.joint_v(j)] - v0[m.joint_v(p)]) for j, p in self._v_pairs]
         return jnp.concatenate(qe + ve)
 
     def label(self):
         return self.name or "Periodic"
 
     def describe(self):
-        return {"type": "Periodic", "exclude": list(self.exclude), "swap": self.swap, "which": self.which,
+        return {"type": "Periodic", "exclude": list(self.exclude), "exclude_velocity": list(self.exclude_velocity),
+                "swap": self.swap, "which": self.which,
                 "velocity_scale": self.velocity_scale, "stage": self.stage}
 
 

@@ -1,0 +1,371 @@
+"""Building blocks shared by the hopping examples (`hopper`, `luxo`): a schedule-free
+flight constraint, an at-rest terminal constraint, the standing equilibrium, and success
+criteria computed from a `Solution`.
+
+Not an example itself (the leading underscore keeps it out of the registry).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+from ..errors import ProblemError
+from ..optimize.constraints import Constraint
+from ..optimize.costs import Cost, resolve
+from ._planar import criterion, longest_run, trajectory_contact_d
+
+__all__ = ["FlightClearance", "AtRest", "ForwardDistance", "PitchBound", "LandingPenalty", "ScaledTorqueLimits", "soft_clearance",
+           "standing_equilibrium", "hop_criteria", "flight_time", "keyframe_guess", "hop_problem"]
+
+
+def soft_clearance(d, tau_points, tau_time):
+    """Smooth "highest clearance reached": ``tau_time logsumexp_s(c_s / tau_time)`` with
+    ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a smooth min over the contact
+    points at sample ``s``). ``d``: (S, k) signed distances, m. The smooth min is at most
+    ``tau_points ln k`` below the true min; the smooth max at most ``tau_time ln S`` above
+    the true max (about ``tau_time ln n`` when ``n`` samples are near the top)."""
+    c = -tau_points * logsumexp(-d / tau_points, axis=1)
+    return tau_time * logsumexp(c / tau_time)
+
+
+class FlightClearance(Constraint):
+    """A flight phase, without saying when: at some sample of the constraint grid every
+    contact point is at least ``clearance`` (m, or a problem-parameter name) above the
+    obstacles, through the smooth max-over-time of the smooth min-over-points of the
+    contact distances (`soft_clearance`). One inequality ``scale (soft_clearance -
+    clearance) >= 0`` (``scale`` 1/m, default 100: the value in cm, so that its
+    sensitivities are of the order of the other constraints'). Needs a problem with contact (``env``/``contact``); the distances are the
+    rollout's contact data at the samples (recomputed from the sampled states by
+    `cstorm.contact_forces` if the samples carry none)."""
+
+    kind = "ineq"
+
+    def __init__(self, clearance, tau_points=1e-3, tau_time=2e-3, scale=100.0, stage=0, name="flight"):
+        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
+        self.scale = float(scale)
+        self.stage, self.name = int(stage), name
+
+    def values(self, ctx, end, samples):
+        from ..contact import contact_forces
+
+        p = ctx.problem
+        if p.env is None:  # (MotionProblem runs check() before it stores env)
+            raise ProblemError("FlightClearance: the problem has no environment/contact model")
+        c = samples.get("contact")
+        if c is not None and hasattr(c, "d"):  # the rollout's own contact data at the samples
+            d = c.d
+        else:
+            d = jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
+        peak = soft_clearance(d, self.tau_points, self.tau_time)
+        return jnp.atleast_1d(self.scale * (peak - resolve(self.clearance, ctx.params)))
+
+    def describe(self):
+        return {"type": "FlightClearance", "clearance": self.clearance, "tau_points": self.tau_points,
+                "tau_time": self.tau_time, "scale": self.scale, "stage": self.stage}
+
+
+class AtRest(Constraint):
+    """The passive DoFs (the floating base) end at rest: ``v_p(T) = 0`` and, with
+    ``acceleration=True``, ``a_p(T) = 0`` (so the final state is a static equilibrium, not
+    the turning point of a bounce). Equalities, ``2 n_passive`` values (m/s, rad/s, m/s^2,
+    rad/s^2; accelerations multiplied by ``accel_scale`` s)."""
+
+    kind = "eq"
+
+    def __init__(self, acceleration=True, accel_scale=0.1, stage=0, name="at_rest"):
+        self.acceleration, self.accel_scale = bool(acceleration), float(accel_scale)
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        self._vp = np.array(problem.layout.vp_idx, int)
+        if not len(self._vp):
+            raise ProblemError("AtRest: the problem has no passive DoFs")
+
+    def values(self, ctx, end, samples):
+        out = [end["v"][self._vp]]
+        if self.acceleration:
+            out.append(self.accel_scale * end["a"][self._vp])
+        return jnp.concatenate(out)
+
+    def describe(self):
+        return {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
+                "stage": self.stage}
+
+
+class ForwardDistance(Constraint):
+    """``scale (q_j(T) - q_j(0) - distance) >= 0`` for the prismatic base joint ``joint``
+    (``distance`` in m, a problem-parameter name allowed; ``scale`` 1/m, default 10). One
+    inequality."""
+
+    kind = "ineq"
+
+    def __init__(self, distance, joint="root_x", scale=10.0, stage=0, name="forward"):
+        self.distance, self.joint, self.scale = distance, joint, float(scale)
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        if self.joint not in problem.model.joint_names:
+            raise ProblemError(f"ForwardDistance: no joint named {self.joint!r}")
+        self._i = problem.model.joint_q(self.joint).start
+
+    def values(self, ctx, end, samples):
+        return jnp.atleast_1d(self.scale * (end["q"][self._i] - samples["q"][0, self._i]
+                                            - resolve(self.distance, ctx.params)))
+
+    def describe(self):
+        return {"type": "ForwardDistance", "distance": self.distance, "joint": self.joint, "stage": self.stage}
+
+
+class PitchBound(Constraint):
+    """``|q_j - center| <= bound`` for the base's pitch joint ``joint`` (rad) on the
+    constraint grid: keeps the robot from tipping over during the motion (and gives the
+    optimizer a gradient against falling long before the end). ``bound`` may name a
+    problem parameter. ``2 S`` inequalities."""
+
+    kind = "ineq"
+
+    def __init__(self, bound, joint="root_pitch", center=0.0, stage=0, name="pitch_bound"):
+        self.bound, self.joint, self.center = bound, joint, float(center)
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        if self.joint not in problem.model.joint_names:
+            raise ProblemError(f"PitchBound: no joint named {self.joint!r}")
+        self._i = problem.model.joint_q(self.joint).start
+
+    def values(self, ctx, end, samples):
+        e = samples["q"][:, self._i] - self.center
+        b = resolve(self.bound, ctx.params)
+        return jnp.concatenate([b - e, b + e])
+
+    def describe(self):
+        return {"type": "PitchBound", "bound": self.bound, "joint": self.joint, "center": self.center,
+                "stage": self.stage}
+
+
+class LandingPenalty(Cost):
+    """Terminal cost ``weight/2 (|q_b(T) - q_rest|^2 + |v_b(T)|^2)`` over the base DoFs
+    ``joints`` (default ``root_z, root_pitch``: m, rad; every base velocity: m/s, rad/s):
+    the landing at rest as a penalty, for the first stages of a solve, before `AtRest` and
+    the terminal base pose become constraints (SLSQP's linearized landing constraints
+    throw a robot that has not yet learnt to hop far from its guess). ``weight`` may name
+    a problem parameter (units of the cost per m^2)."""
+
+    def __init__(self, weight, q_rest, joints=("root_z", "root_pitch")):
+        self.weight, self.q_rest, self.joints = weight, {k: float(v) for k, v in q_rest.items()}, tuple(joints)
+
+    def check(self, problem):
+        m = problem.model
+        self._qi = np.array([m.joint_q(n).start for n in self.joints], int)
+        self._qr = np.array([self.q_rest[n] for n in self.joints])
+        self._vp = np.array(problem.layout.vp_idx, int)
+
+    def terminal(self, ctx, end):
+        e = end["q"][self._qi] - self._qr
+        v = end["v"][self._vp]
+        return 0.5 * resolve(self.weight, ctx.params) * (jnp.sum(e * e) + jnp.sum(v * v))
+
+    def describe(self):
+        return {"type": "LandingPenalty", "weight": self.weight, "q_rest": self.q_rest, "joints": list(self.joints)}
+
+
+class ScaledTorqueLimits(Constraint):
+    """``1 - |tau_i| / limit_i >= 0`` for the active joints' motors, sampled on the
+    constraint grid (the model's effort limits): `constraints.TorqueLimits` divided by the
+    limits, so that its values are O(1) like the other constraints' (SLSQP reports
+    "inequality constraints incompatible" with raw N m values of a 200 N m motor)."""
+
+    kind = "ineq"
+
+    def __init__(self, stage=0, name="torque_limits"):
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        self._idx = np.array(problem.layout.va_idx, int)
+        lim = np.asarray(problem.model.effort_limit)[self._idx]
+        if not np.all(np.isfinite(lim)):
+            raise ProblemError("ScaledTorqueLimits: the model's effort_limit is infinite for some active joints")
+
+    def values(self, ctx, end, samples):
+        r = samples["tau"][:, self._idx] / ctx.model.effort_limit[self._idx]
+        return jnp.concatenate([(1.0 - r).ravel(), (1.0 + r).ravel()])
+
+    def describe(self):
+        return {"type": "ScaledTorqueLimits", "stage": self.stage}
+
+
+def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-12):
+    """The static equilibrium of the passive DoFs with the active joints held at their
+    ``q_guess`` values: Newton's method on ``a_p(q_p) = 0`` at ``v = 0`` (hybrid dynamics
+    with contact forces, zero active accelerations). Returns ``(q, |a_p|_inf)``, q (nq,).
+    Compiles a small function (a few seconds)."""
+    from ..contact import contact_forces
+    from ..dynamics.hybrid import _hybrid
+    from ..dynamics.passive import passive_forces
+    from ..simulate import RolloutLayout
+
+    lay = RolloutLayout.make(model, active)
+    qp_idx, vp_idx = np.array(lay.qp_idx, int), np.array(lay.vp_idx, int)
+    q_guess = jnp.asarray(q_guess, jnp.float64)
+    v = jnp.zeros(model.nv)
+
+    @jax.jit
+    def acc(qp):
+        q = q_guess.at[qp_idx].set(qp)
+        f = contact_forces(model, env, contact, q, v).f_ext
+        pf = passive_forces(model, q, v)
+        return _hybrid(model, q, v, jnp.zeros(lay.n_active), pf[vp_idx], lay.active, f)[1]
+
+    jac = jax.jit(jax.jacfwd(acc))
+    qp = q_guess[qp_idx]
+    for _ in range(iters):
+        a = acc(qp)
+        if float(jnp.max(jnp.abs(a))) < tol:
+            break
+        J = jac(qp)
+        # the horizontal position is neutral (flat ground): least-squares step
+        step = jnp.linalg.lstsq(J, -a, rcond=1e-10)[0]
+        qp = qp + step
+    a = acc(qp)
+    return np.asarray(q_guess.at[qp_idx].set(qp)), float(jnp.max(jnp.abs(a)))
+
+
+def flight_time(t, d, d_on):
+    """Total time (s) during which every contact point is farther than ``d_on`` (no
+    contact force at all) on the grid ``t`` (N+1,), ``d`` (N+1, k); and the longest such
+    interval: ``(total, longest)``."""
+    return longest_run(t, np.all(np.asarray(d) > np.asarray(d_on), axis=1))
+
+
+def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest, pose_tol_z=0.005,
+                 pose_tol_pitch=np.radians(2.0), vel_tol=1e-3, acc_tol=1e-2, feas_tol=1e-6, max_penetration=0.01,
+                 d_on=None):
+    """Success criteria of a hop-and-land problem, from a `Solution`: a dict ``name ->
+    dict(value, tol, ok)``:
+
+    - ``feasibility``: the solver's constraint violation <= ``feas_tol``;
+    - ``forward_distance``: base x travelled (m) >= ``distance`` (``tol`` is the target);
+    - ``flight_time``: the longest interval with every contact point beyond ``d_on`` (no
+      contact force) >= ``min_flight`` s;
+    - ``final_height_error``, ``final_pitch_error``: |base z - z_rest| (m) and |pitch -
+      pitch_rest| (rad) at T, the standing rest pose;
+    - ``final_base_speed``: max |v_base| (m/s, rad/s) at T <= ``vel_tol``;
+    - ``final_base_accel``: max |a_base| at T <= ``acc_tol`` (at rest, not mid-bounce);
+    - ``max_penetration``: the deepest any contact point went below the ground (m) <=
+      ``max_penetration`` (no limbs through the floor).
+    """
+    tr = solution.trajectory
+    m = problem.model
+    ix, iz, ip = (m.joint_q(n).start for n in ("root_x", "root_z", "root_pitch"))
+    vp = np.array(problem.layout.vp_idx, int)
+    q, v, a, t = (np.asarray(tr[k]) for k in ("q", "v", "a", "t"))
+    d = trajectory_contact_d(tr, "hop criteria")
+    d_on = float(np.max(np.asarray(problem.contact.d_on))) if d_on is None else float(d_on)
+    _, longest = flight_time(t, d, d_on)
+    fwd = q[-1, ix] - q[0, ix]
+    out = dict(
+        feasibility=criterion(solution.constraint_violation, feas_tol, solution.constraint_violation <= feas_tol),
+        forward_distance=criterion(fwd, distance, fwd >= distance - 1e-6, op=">="),
+        flight_time=criterion(longest, min_flight, longest >= min_flight, op=">="),
+        final_height_error=criterion(abs(q[-1, iz] - z_rest), pose_tol_z, abs(q[-1, iz] - z_rest) <= pose_tol_z),
+        final_pitch_error=criterion(abs(q[-1, ip] - pitch_rest), pose_tol_pitch,
+                                 abs(q[-1, ip] - pitch_rest) <= pose_tol_pitch),
+        final_base_speed=criterion(np.max(np.abs(v[-1, vp])), vel_tol, np.max(np.abs(v[-1, vp])) <= vel_tol),
+        final_base_accel=criterion(np.max(np.abs(a[-1, vp])), acc_tol, np.max(np.abs(a[-1, vp])) <= acc_tol),
+        max_penetration=criterion(max(0.0, -float(np.min(d))), max_penetration, -float(np.min(d)) <= max_penetration),
+    )
+    return out
+
+
+def keyframe_guess(keyframes, t_final, names):
+    """``{joint: (t, values)}`` samples for `MotionProblem`'s ``initial_guess``: the
+    keyframe postures ``(fraction of t_final, (angle per joint))`` interpolated linearly on
+    400 points."""
+    ts = np.array([k[0] for k in keyframes]) * float(t_final)
+    P = np.array([k[1] for k in keyframes], dtype=float)
+    tt = np.linspace(0.0, float(t_final), 400)
+    return {n: (tt, np.interp(tt, ts, P[:, j])) for j, n in enumerate(names)}
+
+
+def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ctrl, dt, clearance, max_pitch,
+                w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
+                intermediate_max_iter=60, n_path_samples=50, trust=0.5):
+    """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
+    that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
+    root_z, root_pitch`` then the active joints) and ends in the same posture, at rest,
+    at least ``distance`` m further along x. ``contact``: `ContactParams` against flat
+    ground.
+
+    - active joints ``active``: quintic B-splines (``n_ctrl`` control points), start and
+      end at their ``q_rest`` values at rest (by construction);
+    - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight ``w_land``, a
+      problem parameter; ramped by the schedule);
+    - constraints, stage 0: `ForwardDistance` (``distance``), joint position limits and
+      `ScaledTorqueLimits` (sampled), `FlightClearance` (``clearance``: a flight phase,
+      not scheduled), `PitchBound` (``|pitch - pitch_rest| <= max_pitch``);
+      stage 1: `AtRest` (base velocity 0 at ``t_final``) and the terminal base height and
+      pitch equal to ``q_rest``'s (with the active joints at rest in their rest posture
+      this is the standing equilibrium, so the end is static);
+    - initial guess: `keyframe_guess` of ``keyframes``, its control points clipped into
+      the joint limits;
+    - variable bounds (``problem.x_bounds``): every free control point within ``trust``
+      rad of the guess's and within the joint's limits (a box trust region: SLSQP's first
+      quasi-Newton steps otherwise move control points by radians and throw the robot
+      over, where the linearized contact constraints mean nothing);
+    - solve plan ``schedule`` (``[{"params": {...}, "level": k}, ...]``; default: stage 0
+      with the distance ramped 25 %, 50 %, 100 % and ``w_land`` ramped ``w_land * (0.01,
+      0.01, 0.1, 1)``, then stage 1), intermediate stages solved to ``intermediate_tol`` in at most
+      ``intermediate_max_iter`` iterations;
+    - ``problem.success_criteria``: `hop_criteria` with ``min_flight``.
+    Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
+    from ..environment import Environment, ground
+    from ..optimize import costs, constraints
+    from ..optimize.problem import MotionProblem
+
+    q_rest = np.asarray(q_rest, float)
+    ia = [model.joint_q(n).start for n in active]
+    z_rest, pitch_rest = float(q_rest[model.joint_q("root_z").start]), float(q_rest[model.joint_q("root_pitch").start])
+    prob = MotionProblem(
+        model, active=active, t_final=t_final, n_ctrl=n_ctrl, dt=dt, q0=q_rest, env=Environment([ground()]),
+        contact=contact, q_final_active=q_rest[ia], rest_end=True, rest_start=True,
+        costs=[costs.TorqueSquared(weight=1.0), LandingPenalty("w_land", dict(root_z=z_rest, root_pitch=pitch_rest))],
+        constraints=[
+            ForwardDistance("distance"),
+            AtRest(acceleration=False, stage=1),
+            constraints.TerminalState("root_z", q=z_rest, stage=1),
+            constraints.TerminalState("root_pitch", q=pitch_rest, stage=1),
+            constraints.JointLimits(list(active), velocity=False),
+            ScaledTorqueLimits(),
+            FlightClearance("clearance"),
+            PitchBound("max_pitch", center=pitch_rest),
+        ],
+        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land},
+        integrator=integrator, name=name, n_path_samples=n_path_samples,
+        initial_guess=keyframe_guess(keyframes, t_final, active),
+    )
+    from ..optimize.solve import variable_bounds
+
+    lb, ub = variable_bounds(prob)  # the joint limits
+    x0 = np.clip(np.asarray(prob.x0, float), lb, ub)  # the keyframe fit may ring past a limit
+    prob.x0 = x0
+    prob.x_bounds = (np.maximum(lb, x0 - trust), np.minimum(ub, x0 + trust))
+    d_on = float(np.max(np.asarray(contact.d_on)))
+
+    def criteria(solution):
+        return hop_criteria(prob, solution, distance=distance, min_flight=min_flight, z_rest=z_rest,
+                            pitch_rest=pitch_rest, d_on=d_on)
+
+    prob.success_criteria = criteria
+    if schedule is None:
+        schedule = [dict(params=dict(distance=distance * 0.25, w_land=w_land * 0.01), level=0),
+                    dict(params=dict(distance=distance * 0.5, w_land=w_land * 0.01), level=0),
+                    dict(params=dict(distance=distance, w_land=w_land * 0.1), level=0),
+                    dict(params=dict(distance=distance, w_land=w_land), level=0),
+                    dict(params=dict(distance=distance, w_land=w_land), level=1)]
+    if schedule:
+        prob.solve_options["schedule"] = schedule
+        prob.solve_options.update(intermediate_tol=intermediate_tol, intermediate_max_iter=intermediate_max_iter)
+    return prob

@@ -1,0 +1,205 @@
+"""The planar one-legged hopper of MuJoCo/Gymnasium (``Hopper-v5``'s ``hopper.xml``),
+rebuilt with `ModelBuilder` with the same numbers, and a hop-forward problem.
+
+Why a builder model and not ``cs.load_mjcf(hopper.xml)``: the problem must run from a
+plain install (core dependencies only; MuJoCo and Gymnasium are test extras).
+``tests/test_hopper.py`` loads Gymnasium's ``hopper.xml`` with MuJoCo and with
+``cs.load_mjcf`` and checks that this model's mass matrix, bias forces, forward dynamics
+and passive forces agree with MuJoCo's at random states (to ~1e-12).
+
+Model (`hopper_model`; every number is Gymnasium's unless said otherwise)
+---------------------------------------------------------------------------
+Four capsules in a chain, torso - thigh - leg - foot, in the x-z plane, gravity 9.81
+m/s^2 along -z. Masses and inertias are MuJoCo's ``inertiafromgeom``: uniform density
+1000 kg/m^3 over each capsule (a cylinder plus two hemispheres, `capsule_inertia`).
+
+| link  | capsule radius | axis length (= 2 x half-length) | mass (kg) | axis        |
+|-------|----------------|----------------------------------|-----------|-------------|
+| torso | 0.05 m         | 0.40 m                           | 3.6652    | vertical    |
+| thigh | 0.05 m         | 0.45 m                           | 4.0579    | vertical    |
+| leg   | 0.04 m         | 0.50 m                           | 2.7814    | vertical    |
+| foot  | 0.06 m         | 0.39 m                           | 5.3156    | horizontal  |
+
+Total 15.820 kg. Principal inertias about the capsule centres (kg m^2): torso
+(0.069246, 0.069246, 0.004451), thigh (0.093299, 0.093299, 0.004941), leg (0.072303,
+0.072303, 0.002182), foot (0.103523, 0.103523, 0.009242) (the last entry about the
+capsule axis).
+
+Frames and joints at ``q = 0`` (standing straight, torso centre at ``root_z`` above the
+ground, world x forward; cstorm puts each link frame at its joint's anchor):
+
+- passive planar base on the torso centre: ``root_x`` (prismatic x), ``root_z``
+  (prismatic z), ``root_pitch`` (revolute about +y), MuJoCo's ``rootx, rootz, rooty``
+  (``q`` equals MuJoCo's ``qpos``: ``root_z`` is the torso centre's height, Gymnasium's
+  ``ref = 1.25``). No armature, damping or limits on the base.
+- ``thigh_joint``: torso -> thigh, at the torso's lower end (0, 0, -0.2) (the torso
+  capsule's end-sphere centre); thigh capsule centre 0.225 m below the joint.
+- ``leg_joint``: thigh -> leg, 0.45 m below the thigh joint; leg capsule centre 0.25 m
+  below it.
+- ``foot_joint`` (ankle): leg -> foot, 0.5 m below the leg joint (the leg capsule's
+  lower end-sphere centre); the foot capsule lies along x, centred 0.065 m ahead of the
+  ankle at ankle height: heel end-sphere centre at x = -0.13, toe at x = +0.26.
+- The three hinges turn about -y (MuJoCo ``axis="0 -1 0"``): a positive angle turns the
+  child's lower end forward (+x). Ranges: thigh [-150, 0] deg, leg [-150, 0] deg, foot
+  [-45, 45] deg (``q = 0`` is the upper limit of thigh and leg: straight). Armature 1
+  kg m^2 and viscous damping 1 N m s/rad on each (Gymnasium's ``<default>``; the motor
+  also supplies the damping torque). Effort limit 200 N m (motor ``gear = 200``,
+  ``ctrlrange = [-1, 1]``). No velocity limits (Gymnasium has none).
+- Standing at ``q = 0`` the ankle is 1.15 m below the torso centre and the foot capsule's
+  underside 1.21 m below it (Gymnasium starts the torso at 1.25 m, 4 cm up in the air).
+
+Contact (`hopper_contact`, not Gymnasium's soft constraints): cstorm's smooth penalty
+law on the two end spheres of every capsule against the ground (8 contact points).
+DESIGN.md's tumbler stiffness (k = 5e3 N/m for 3 kg) scaled by the mass ratio 15.8 / 3 ~ 5
+(the same sink per unit weight): ``k = 2.5e4 N/m``; damping ``c = 2000 N s/m`` (a damping
+ratio of about 1.6 for the whole robot on one contact point: a landing is absorbed, not
+bounced), ``d_on = 0.01 m``, ``d_off = 0``, ``eps = 0.01 N``, friction ``mu = 0.9`` on every
+capsule (Gymnasium's body friction; its foot has 2.0, which only stiffens the friction
+damper ``1.5 mu N / v_max``), ``v_max = 0.3 m/s`` (the draft's 0.1 makes that damper,
+about 1.5 * 0.9 * 155 N / 0.1 m/s ~ 2100 N s/m on the foot, a stiff mode for RK4 at 4 ms
+steps; with 0.3 a loaded foot creeps at a few cm/s instead of ~1 cm/s). Standing still
+the foot's end spheres rest about 4.4 mm above the ground (the force ramp starts at
+``d_on``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..geometry.shapes import Capsule
+from ..model.builder import ModelBuilder
+from ._planar import capsule_inertia
+
+# (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
+HOPPER = dict(
+    torso=dict(radius=0.05, length=0.40),
+    thigh=dict(radius=0.05, length=0.45),
+    leg=dict(radius=0.04, length=0.50),
+    foot=dict(radius=0.06, length=0.39),
+    foot_offset=0.065,  # foot capsule centre ahead of the ankle, m
+    thigh_joint=dict(lower=-math.radians(150), upper=0.0),
+    leg_joint=dict(lower=-math.radians(150), upper=0.0),
+    foot_joint=dict(lower=-math.radians(45), upper=math.radians(45)),
+    effort=200.0,  # N m: gear 200 x ctrlrange 1
+    armature=1.0,  # kg m^2
+    damping=1.0,  # N m s/rad
+)
+
+
+def hopper_model(armature: float | None = None, damping: float | None = None, effort: float | None = None):
+    """The Gymnasium hopper (see the module docstring for every number). Keyword
+    arguments override Gymnasium's armature (kg m^2), damping (N m s/rad) and effort
+    limit (N m) of the three hinges. Joints: ``root_x, root_z, root_pitch, thigh_joint,
+    leg_joint, foot_joint``; geoms ``torso_geom, thigh_geom, leg_geom, foot_geom``."""
+    P = HOPPER
+    arm = P["armature"] if armature is None else float(armature)
+    damp = P["damping"] if damping is None else float(damping)
+    eff = P["effort"] if effort is None else float(effort)
+    b = ModelBuilder("hopper", source="<cstorm.examples.hopper.hopper_model>")
+    hinge = dict(axis=(0.0, -1.0, 0.0), armature=arm, damping=damp, effort=eff)
+    t, th, lg, ft = P["torso"], P["thigh"], P["leg"], P["foot"]
+
+    m, I = capsule_inertia(t["radius"], t["length"])
+    b.add_link("torso", mass=m, inertia=I)
+    b.add_geom("torso", Capsule(t["radius"], t["length"]), name="torso_geom")
+
+    m, I = capsule_inertia(th["radius"], th["length"])
+    c = (0.0, 0.0, -th["length"] / 2)
+    b.add_link("thigh", mass=m, com=c, inertia=I)
+    b.add_joint("thigh_joint", "revolute", "torso", "thigh", xyz=(0.0, 0.0, -t["length"] / 2), **hinge,
+                **P["thigh_joint"])
+    b.add_geom("thigh", Capsule(th["radius"], th["length"]), xyz=c, name="thigh_geom")
+
+    m, I = capsule_inertia(lg["radius"], lg["length"])
+    c = (0.0, 0.0, -lg["length"] / 2)
+    b.add_link("leg", mass=m, com=c, inertia=I)
+    b.add_joint("leg_joint", "revolute", "thigh", "leg", xyz=(0.0, 0.0, -th["length"]), **hinge, **P["leg_joint"])
+    b.add_geom("leg", Capsule(lg["radius"], lg["length"]), xyz=c, name="leg_geom")
+
+    m, (Ip, _, Ia) = capsule_inertia(ft["radius"], ft["length"])
+    c = (P["foot_offset"], 0.0, 0.0)
+    b.add_link("foot", mass=m, com=c, inertia=(Ia, Ip, Ip))  # capsule axis along x
+    b.add_joint("foot_joint", "revolute", "leg", "foot", xyz=(0.0, 0.0, -lg["length"]), **hinge, **P["foot_joint"])
+    b.add_geom("foot", Capsule(ft["radius"], ft["length"]), xyz=c, rpy=(0.0, -math.pi / 2, 0.0), name="foot_geom")
+    b.add_frame("heel", "foot", xyz=(P["foot_offset"] - ft["length"] / 2, 0.0, -ft["radius"]))
+    b.add_frame("toe", "foot", xyz=(P["foot_offset"] + ft["length"] / 2, 0.0, -ft["radius"]))
+    return b.build(floating_base="planar")
+
+
+def standing_height():
+    """Height of the torso centre when the straight hopper's foot touches the ground
+    (``q = 0`` posture, foot capsule tangent to z = 0), m."""
+    P = HOPPER
+    return P["torso"]["length"] / 2 + P["thigh"]["length"] + P["leg"]["length"] + P["foot"]["radius"]
+
+
+ACTIVE = ("thigh_joint", "leg_joint", "foot_joint")
+
+
+def hopper_contact(stiffness=2.5e4, damping=2000.0, d_on=0.01, d_off=0.0, friction=0.9, v_max=0.3):
+    """The hopper's `ContactParams` (see the module docstring for the choice)."""
+    from ..contact import ContactParams
+
+    return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
+                         v_max=v_max)
+
+
+# Standing rest state with the default contact (q = 0 posture, v = 0): the equilibrium of
+# the passive base computed by `_hopping.standing_equilibrium` (|a_base| < 1e-12 there;
+# tests/test_hopper.py re-checks it). The foot's end spheres rest ~4.4 mm above the
+# ground; the torso tilts back by 0.15 deg (the heel carries 62 % of the weight).
+REST_Z = 1.2143910383975463
+REST_PITCH = -0.0026500383279347
+
+
+# The default initial guess: postures (thigh, leg, foot angles in rad) at fractions of
+# t_final, interpolated linearly and fitted by the splines: stand, crouch (knees forward,
+# foot flat), push-off (legs straight, toes pointed down), tuck, landing crouch, stand.
+# A posture-level sketch of a hop; it says nothing about the base, the timing of contacts
+# or the distance (rolled out, it hops in place with a 0.2 s flight and tips 0.13 rad).
+KEYFRAMES = (
+    (0.0, (0.0, 0.0, 0.0)),
+    (0.4 / 1.2, (-0.1, -0.8, 0.45)),
+    (0.48 / 1.2, (-0.1, -0.2, -0.5)),
+    (0.6 / 1.2, (-0.3, -0.6, 0.3)),
+    (0.78 / 1.2, (-0.1, -0.8, 0.45)),
+    (1.0, (0.0, 0.0, 0.0)),
+)
+
+
+def hopper(distance: float = 0.4, t_final: float = 1.2, n_ctrl: int = 12, dt: float = 0.004,
+           clearance: float = 0.03, integrator: str = "rk4", contact=None, schedule=None,
+           armature: float | None = None, max_pitch: float = 1.0, w_land: float = 1e7):
+    """Hop forward by at least ``distance`` m, with a flight phase, and land at rest.
+
+    Robot: `hopper_model` (Gymnasium's hopper; ``armature`` overrides its 1 kg m^2) with
+    `hopper_contact` on every capsule against flat ground; active ``thigh_joint,
+    leg_joint, foot_joint`` (quintic B-splines, ``n_ctrl`` control points each, RK4 at
+    ``dt``), passive planar base.
+
+    Start: standing straight at rest (``q = 0`` posture, base at the contact equilibrium
+    `REST_Z`, `REST_PITCH`, ``v = 0``). End (``t_final``): the same posture at rest, the
+    base at rest in the standing equilibrium, ``root_x`` at least ``distance`` ahead.
+
+    The problem is `_hopping.hop_problem` (costs, constraints, variable bounds, solve plan
+    and success criteria are documented there): cost ``integral 1/2 |tau|^2 dt`` over the
+    three motors (N^2 m^2 s) plus the landing penalty (``w_land``, N^2 m^2 s per m^2) of the
+    first stages; a flight phase with every contact point at least ``clearance`` m up at
+    some instant (not scheduled); ``|pitch| <= max_pitch`` rad; joint limits and ``|tau|
+    <= 200 N m`` (sampled); the end at rest in the rest pose (stage 1).
+
+    Initial guess (posture level): `KEYFRAMES` (stand, crouch, push, tuck, land, stand).
+    """
+    from ._hopping import hop_problem
+
+    model = hopper_model(armature=armature)
+    contact = hopper_contact() if contact is None else contact
+    q_rest = np.array([0.0, REST_Z, REST_PITCH, 0.0, 0.0, 0.0])
+    return hop_problem("hopper", model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
+                       dt=dt, clearance=clearance, max_pitch=max_pitch, w_land=w_land, min_flight=0.05,
+                       keyframes=KEYFRAMES, integrator=integrator, schedule=schedule)
+
+
+EXAMPLES = {"hopper": hopper}

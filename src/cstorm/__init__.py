@@ -16,6 +16,8 @@ from .dynamics import (
     forward_kinematics, body_velocities, frame_pose, rnea, bias_forces, gravity_forces, mass_matrix, aba,
     hybrid_dynamics, point_jacobian, kinetic_energy, potential_energy, center_of_mass, passive_forces,
     integrate, difference, normalize,
+    rnea_derivatives, aba_derivatives, hybrid_dynamics_derivatives, RNEADerivatives, ABADerivatives,
+    HybridDerivatives,
 )
 from .trajectory import QuinticBSpline
 from .contact import ContactParams

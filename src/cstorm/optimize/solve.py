@@ -194,7 +194,8 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
       resume: path of such a checkpoint to continue from (stage and iterate).
       options: extra solver options (scipy ``options`` / IPOPT options).
       out: stream for the progress display (default stdout).
-      objective_scale: ``"auto"`` (default; ``1 / |grad f|_inf`` at each stage's start),
+      objective_scale: ``"auto"`` (default; ``s / |grad f|_inf`` at each stage's start,
+        ``s = problem.solve_options.get("first_step", 1.0)``),
         None (1) or a positive factor applied to the objective the solver sees (SLSQP's
         first step uses an identity Hessian, so an unscaled cost with large gradients
         throws it far away). Reported costs are unscaled.
@@ -265,7 +266,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
         if _rest[2] and si == start_stage:  # initial guess diverges
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
-        ev.fscale = _objective_scale(objective_scale, ev, x)
+        ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
             # intermediate stages only warm-start the next one: the problem may loosen them
@@ -331,17 +332,18 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     return sol
 
 
-def _objective_scale(spec, ev, x):
-    """The factor applied to the objective seen by the solver. ``"auto"``: ``1 /
+def _objective_scale(spec, ev, x, first_step=1.0):
+    """The factor applied to the objective seen by the solver. ``"auto"``: ``first_step /
     |grad f(x_start)|_inf`` (so the first quasi-Newton step, taken with an identity
-    Hessian, moves no control point by more than about 1 rad or m because of the cost),
-    1 where the gradient vanishes."""
+    Hessian, moves no control point by more than about ``first_step`` rad or m because of
+    the cost; a problem sets ``solve_options["first_step"]``, default 1, where a radian
+    throws its warm start away), ``first_step`` where the gradient vanishes."""
     if spec is None:
         return 1.0
     if spec == "auto":
         g = ev.at(x)[4]
         gmax = float(np.max(np.abs(g))) if g.size else 0.0
-        return 1.0 / gmax if np.isfinite(gmax) and gmax > 1e-12 else 1.0
+        return float(first_step) / gmax if np.isfinite(gmax) and gmax > 1e-12 else float(first_step)
     val = float(spec)
     if not (np.isfinite(val) and val > 0):
         raise InputError(f"solve: objective_scale must be 'auto', None or a positive number, got {spec!r}")

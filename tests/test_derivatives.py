@@ -298,6 +298,7 @@ def test_against_pinocchio(rel, floating):
 
 
 # ------------------------------------------------------------------ custom JVP rule in a rollout
+@SLOW  # ~4 min of compiles on 2 cores; test_simulate_rollout_uses_fast_rule... covers the same in CI
 def test_fast_rule_rollout_gradients_match_autodiff():
     """A few explicit-Euler steps (lax.scan) of hybrid dynamics on a tree with free, ball,
     revolute and prismatic joints: gradients (reverse mode) and a JVP (forward mode) of a
@@ -342,3 +343,116 @@ def test_fast_rule_rollout_gradients_match_autodiff():
     for k, (x, y) in enumerate(zip(g1, g0)):
         assert _rel(x, y) < 1e-9, (k, _rel(x, y))
     assert abs(v1_ - v0_) < 1e-10 and abs(j1 - j0) < 1e-9 * max(1.0, abs(j0))
+
+
+# ------------------------------------------------------------------ real models: analytic vs autodiff
+REAL = {"ur5": ("ur_description/urdf/ur5_robot.urdf", None),
+        "solo12": ("solo_description/robots/solo12.urdf", "free"),
+        "talos": ("talos_data/robots/talos_reduced.urdf", "free")}
+
+
+@functools.lru_cache(maxsize=None)
+def _erd_model(key):
+    """A cstorm model of an example-robot-data URDF (skips when the package is absent)."""
+    import importlib.metadata
+    import os
+    import warnings
+
+    rel, floating = REAL[key]
+    try:
+        robots = importlib.metadata.distribution("example-robot-data").locate_file(
+            "cmeel.prefix/share/example-robot-data/robots")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    path = os.path.join(str(robots), rel)
+    if not os.path.isfile(path):
+        pytest.skip(f"{rel} not found")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return cs.load_urdf(path, floating_base=floating, load_meshes=False, inertia_check="lenient")
+
+
+@pytest.mark.parametrize("key,algorithms", [
+    ("ur5", ("hybrid",)),
+    pytest.param("ur5", ("rnea", "aba"), marks=SLOW),
+    pytest.param("solo12", ("hybrid", "rnea", "aba"), marks=SLOW),
+    pytest.param("talos", ("hybrid", "rnea", "aba"), marks=SLOW)], ids=["ur5", "ur5-rnea-aba", "solo12", "talos"])
+def test_analytic_matches_autodiff_on_real_models(key, algorithms):
+    """The acceptance check on example-robot-data robots (free base on Solo12 and TALOS):
+    analytic == jacfwd reference to 1e-10 relative, with external wrenches on every body
+    and without (f_ext=None), at a random configuration and at the neutral one. Hybrid:
+    floating base passive, every other joint active (as in the benchmark). Compile-heavy
+    (each model x algorithm x f_ext/None is two compilations, minutes on a loaded 2-core
+    machine), so CI runs UR5's hybrid derivatives; Pinocchio's derivatives on UR5 and
+    Solo12 are checked in CI by `test_against_pinocchio`."""
+    model = _erd_model(key)
+    rng = np.random.default_rng(11)
+    nfb = 6 if REAL[key][1] else 0
+    active = tuple(bool(i % 2) if i >= nfb else False for i in range(model.nv))
+    act = np.array(active)
+    for k, with_fext in enumerate((True, False)):
+        q, v, a = random_state(model, rng)
+        if k:
+            q = jnp.asarray(model.neutral())
+        tau = jnp.asarray(rng.normal(size=model.nv) * 3.0)
+        f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6)) * 5.0) if with_fext else None
+        if "hybrid" in algorithms:
+            _compare(_hyb(model, q, v, a[act], tau[~act], active=active, f_ext=f_ext),
+                     _hyb_ad(model, q, v, a[act], tau[~act], active=active, f_ext=f_ext))
+        if "rnea" in algorithms:
+            _compare(_rnea(model, q, v, a, f_ext), _rnea_ad(model, q, v, a, f_ext))
+        if "aba" in algorithms:
+            _compare(_aba(model, q, v, tau, f_ext), _aba_ad(model, q, v, tau, f_ext))
+
+
+# ------------------------------------------------------------------ the rule inside cstorm's rollouts
+def test_simulate_rollout_uses_fast_rule_and_keeps_mass_tangents():
+    """`cstorm.simulate.rollout` (RK4 with RKMK4 on the free base, checkpointed scan,
+    state-dependent external wrenches from a ``contact_fn``): its value equals the
+    ``derivatives="autodiff"`` rollout's, and its reverse-mode gradient (through the
+    custom JVP rule, the default) w.r.t. the link masses (each), joint placements, initial
+    velocity and active accelerations (random directions) matches central finite
+    differences, so no model-parameter tangent is dropped (a dropped one would be off by
+    O(1)). The 1e-9 comparison with plain autodiff is `test_fast_rule_rollout_...`
+    (slow: its compilations take minutes)."""
+    from cstorm.simulate import RolloutLayout, rollout
+
+    base = random_tree(14, 0, n_bodies=4, joint_types=("ball", "revolute", "prismatic", "free"))
+    assert {type(j) for j in base.joints} == {cs.Free, cs.Ball, cs.Revolute, cs.Prismatic}
+    active_names = [n for n, j in zip(base.joint_names, base.joints) if isinstance(j, (cs.Revolute, cs.Prismatic))]
+    lay = RolloutLayout.make(base, active_names)
+    rng = np.random.default_rng(4)
+    q0, v0, _ = random_state(base, rng)
+    N, na = 4, lay.n_active
+    qa = jnp.asarray(rng.normal(size=(N + 1, na)) * 0.1)
+    va = jnp.asarray(rng.normal(size=(N + 1, na)))
+    aa = jnp.asarray(rng.normal(size=(N + 1, na)))
+    F0 = jnp.asarray(rng.normal(size=(base.n_bodies, 6)))
+    contact_fn = lambda q, v: (F0 * (1.0 + 0.3 * jnp.sum(jnp.sin(q)) + 0.1 * jnp.sum(v)), None)
+    cost = lambda t, q, v, a, tau, c, p: 0.5 * jnp.sum(tau ** 2)
+
+    def loss(derivatives, mass, joint_p, v0, aa):
+        paths = dict(qa=qa, va=va, aa=aa, qm=qa[:-1], vm=va[:-1], am=aa[:-1])
+        r = rollout(base.replace(mass=mass, joint_p=joint_p), lay, q0, v0, paths, 0.01, N, contact_fn=contact_fn,
+                    cost_fn=cost, record=False, derivatives=derivatives)
+        return jnp.sum(jnp.sin(r["qT"])) + jnp.sum(r["vT"] * jnp.arange(base.nv)) + 1e-3 * r["J"]
+
+    args = (base.mass, base.joint_p, v0, aa)
+    value = jit(functools.partial(loss, "analytic"))
+    grads = jit(jax.grad(functools.partial(loss, "analytic"), argnums=(0, 1, 2, 3)))(*args)
+    assert float(value(*args)) == pytest.approx(float(jit(functools.partial(loss, "autodiff"))(*args)), rel=1e-12)
+    eps = 1e-6
+
+    def fd(k, direction):
+        plus = [x + eps * direction if i == k else x for i, x in enumerate(args)]
+        minus = [x - eps * direction if i == k else x for i, x in enumerate(args)]
+        return (float(value(*plus)) - float(value(*minus))) / (2 * eps)
+
+    for b in range(base.n_bodies):  # each link mass
+        e = jnp.zeros(base.n_bodies).at[b].set(1.0)
+        assert float(grads[0][b]) == pytest.approx(fd(0, e), rel=1e-6, abs=1e-7), b
+    for k in (1, 2, 3):
+        d = jnp.asarray(rng.normal(size=np.shape(args[k])))
+        assert float(jnp.sum(grads[k] * d)) == pytest.approx(fd(k, d), rel=1e-6, abs=1e-7), k
+    with pytest.raises(cs.InputError):
+        loss("symbolic", *args)

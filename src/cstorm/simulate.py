@@ -28,6 +28,13 @@ Conventions
   ``segment`` steps whose inner scan is wrapped in `jax.checkpoint`, so reverse-mode
   differentiation stores one state per segment plus one segment's intermediates:
   O(N / segment + segment) instead of O(N) (default segment ~ sqrt(N)).
+- Derivatives: by default the hybrid dynamics in a rollout carries the analytic
+  recursive Jacobians as its JAX derivative rule (`cstorm.dynamics.derivatives_fast`: one
+  evaluation of the full Jacobians per stage, shared by every tangent or cotangent), so
+  ``jax.jvp``/``jax.vjp``/``jacfwd`` of a rollout do not differentiate through the
+  recursive algorithm; tangents of model parameters (masses, lengths: design
+  derivatives) fall back to autodiff and are never dropped. ``derivatives="autodiff"``
+  differentiates through the algorithm instead (the reference; same values to rounding).
 - Divergence: a step whose new passive state has a NaN/inf entry or exceeds the bounds
   (``|q_p| > q_bound``, ``|v_p| > v_bound``) marks the rollout diverged; the state is
   frozen from then on (so nothing downstream turns NaN), the running cost becomes inf,
@@ -49,6 +56,7 @@ import jax.numpy as jnp
 
 from . import spatial as sp
 from .dynamics.hybrid import _hybrid
+from .dynamics.derivatives_fast import _hybrid_fast
 from .dynamics.passive import passive_forces
 from .errors import DivergenceError, InputError, ProblemError
 from .model.joints import Ball, Free
@@ -57,6 +65,7 @@ from .trajectory import QuinticBSpline
 __all__ = ["simulate", "rollout", "Trajectory", "RolloutLayout", "time_grid", "active_paths", "check_divergence"]
 
 INTEGRATORS = ("rk4", "euler")
+DERIVATIVES = ("analytic", "autodiff")
 _REASONS = ("", "non-finite position", "non-finite velocity", "position bound exceeded", "velocity bound exceeded")
 
 
@@ -189,9 +198,10 @@ def _dexpinv(model, layout, theta, xi):
 # ---------------------------------------------------------------------------------------
 # One evaluation of the dynamics at a stage
 # ---------------------------------------------------------------------------------------
-def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params):
+def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params, derivatives="analytic"):
     """Dynamics at one instant. q, v: full vectors whose passive entries are the
-    integrated state; the active entries are overwritten with (qa, va).
+    integrated state; the active entries are overwritten with (qa, va). ``derivatives``:
+    "analytic" (the custom-JVP hybrid dynamics) or "autodiff".
     Returns (q, v, a (nv,), tau (nv,), contact data, running-cost integrand)."""
     ia, iva, ivp = np.array(layout.qa_idx, int), np.array(layout.va_idx, int), np.array(layout.vp_idx, int)
     if len(ia):
@@ -202,7 +212,8 @@ def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params):
         f_ext, cdata = contact_fn(q, v)
     else:
         f_ext, cdata = None, None
-    tau_a, a_p = _hybrid(model, q, v, aa, pf[ivp], layout.active, f_ext)
+    hyb = _hybrid_fast if derivatives == "analytic" else _hybrid
+    tau_a, a_p = hyb(model, q, v, aa, pf[ivp], layout.active, f_ext)
     a = jnp.zeros(model.nv, dtype=v.dtype)
     tau = pf
     if len(iva):
@@ -220,7 +231,7 @@ def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params):
 def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int, *, integrator: str = "rk4",
             contact_fn: Callable | None = None, cost_fn: Callable | None = None, params: Any = None,
             segment: int | None = None, q_bound: float = 1e4, v_bound: float = 1e4, record: bool = True,
-            n_valid=None):
+            n_valid=None, derivatives: str = "analytic"):
     """Integrate the passive state with prescribed active paths (pure JAX; jit/grad/vmap).
 
     Args:
@@ -244,6 +255,9 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
       q_bound, v_bound: divergence bounds on the passive positions and velocities (may be
         traced).
       record: if False, the trajectory arrays are not returned (``traj`` is None).
+      derivatives: ``"analytic"`` (default: the hybrid dynamics' JAX derivative is the
+        analytic recursive one, model-parameter tangents by autodiff) or ``"autodiff"``
+        (differentiate through the recursive algorithm). Values are identical.
     Returns:
       dict with ``J`` (running-cost integral; inf if diverged), ``qT``, ``vT`` (final
       state, active entries from the paths), ``diverged`` (bool), ``div_step`` (int, first
@@ -254,6 +268,8 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
     """
     if integrator not in INTEGRATORS:
         raise InputError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    if derivatives not in DERIVATIVES:
+        raise InputError(f"derivatives must be one of {DERIVATIVES}, got {derivatives!r}")
     N = int(n_steps)
     h = dt
     n_run = N if n_valid is None else n_valid
@@ -285,7 +301,7 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
     xs["k"] = jnp.arange(n_seg * seg, dtype=jnp.int32).reshape(n_seg, seg)  # steps >= N are padding
 
     def stage(q, v, qa_, va_, aa_, t):
-        return _stage(model, layout, q, v, qa_, va_, aa_, t, contact_fn, cost_fn, params)
+        return _stage(model, layout, q, v, qa_, va_, aa_, t, contact_fn, cost_fn, params, derivatives)
 
     def step(carry, x):
         q, v, J, bad, bstep, bdof, breason = carry

@@ -78,8 +78,8 @@ from ..geometry.shapes import Capsule
 from ..model.builder import ModelBuilder
 from ..optimize.constraints import Constraint
 from ..optimize.costs import resolve
-
-DENSITY = 1000.0  # kg/m^3, MuJoCo's default geom density
+from ._planar import DENSITY, capsule_inertia, longest_run, trajectory_contact_d
+from ._planar import criterion as _entry
 
 # (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
 WALKER = dict(
@@ -98,20 +98,6 @@ WALKER = dict(
 
 SIDES = ("r", "l")
 ACTIVE = ("hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l")
-
-
-def capsule_inertia(radius, length, density=DENSITY):
-    """Mass (kg) and principal inertias ``(I_perp, I_perp, I_axial)`` (kg m^2, about the
-    centre, axis along z) of a solid capsule: a cylinder of ``length`` plus two
-    hemispheres of ``radius``, uniform ``density`` (MuJoCo's ``inertiafromgeom``)."""
-    r, h = float(radius), float(length)
-    mc = density * math.pi * r * r * h
-    ms = density * 4.0 / 3.0 * math.pi * r ** 3
-    # the two hemispheres about the capsule centre: each 83/320 m r^2 about its own CoM,
-    # which lies 3r/8 from its flat face, i.e. h/2 + 3r/8 from the centre
-    perp = mc * (3 * r * r + h * h) / 12.0 + ms * (2 * r * r / 5 + h * h / 4 + 3 * r * h / 8)
-    axial = mc * r * r / 2 + ms * 2 * r * r / 5
-    return mc + ms, (perp, perp, axial)
 
 
 def walker_model(armature: float | None = None, damping: float | None = None, effort: float | None = None,
@@ -399,7 +385,7 @@ def full_cycle(problem, solution):
 
     tr = solution.trajectory
     t, q, v = (np.asarray(tr[k]) for k in ("t", "q", "v"))
-    d = _traj_d(tr)
+    d = trajectory_contact_d(tr, "walker criteria")
     if not getattr(problem, "half_cycle", False):
         return dict(t=t, q=q, v=v, d=d)
     labels = contact_labels(problem.model, problem.env)
@@ -411,22 +397,6 @@ def full_cycle(problem, solution):
     q2[:, 0] += q[-1, 0] - q[0, 0]
     return dict(t=np.concatenate([t, t[1:] + t[-1]]), q=np.concatenate([q, q2]), v=np.concatenate([v, v2]),
                 d=np.concatenate([d, d[1:][:, perm]]))
-
-
-def _entry(value, tol, ok, op="<="):
-    return dict(value=float(value), tol=float(tol), op=op, ok=bool(ok))
-
-
-def _traj_d(tr):
-    c = tr.get("contact")
-    if c is None:
-        raise ProblemError("walker criteria: the solution's trajectory has no contact data")
-    if isinstance(c, dict):
-        for k in ("d", "contact/d"):
-            if k in c:
-                return np.asarray(c[k])
-        raise ProblemError(f"walker criteria: no contact distances in the trajectory (keys {sorted(c)})")
-    return np.asarray(c.d)
 
 
 def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_tol=1e-6, feas_tol=1e-6,
@@ -465,11 +435,7 @@ def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_
     tc = cyc["t"]
     for side, geoms in zip(SIDES, FEET):
         idx = [i for i, lab in enumerate(labels) if lab[0] in geoms]
-        air = np.all(cyc["d"][:, idx] > d_on, axis=1)
-        longest, run = 0.0, 0.0
-        for k in range(1, len(tc)):
-            run = run + (tc[k] - tc[k - 1]) if (air[k] and air[k - 1]) else 0.0
-            longest = max(longest, run)
+        _, longest = longest_run(tc, np.all(cyc["d"][:, idx] > d_on, axis=1))
         out[f"swing_time_{side}"] = _entry(longest, min_swing, longest >= min_swing, op=">=")
     pen = max(0.0, -float(np.min(cyc["d"])))
     out["max_penetration"] = _entry(pen, max_penetration, pen <= max_penetration)

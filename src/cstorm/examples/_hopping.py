@@ -70,13 +70,17 @@ class FlightClearance(Constraint):
 class AtRest(Constraint):
     """The passive DoFs (the floating base) end at rest: ``v_p(T) = 0`` and, with
     ``acceleration=True``, ``a_p(T) = 0`` (so the final state is a static equilibrium, not
-    the turning point of a bounce). Equalities, ``2 n_passive`` values (m/s, rad/s, m/s^2,
-    rad/s^2; accelerations multiplied by ``accel_scale`` s)."""
+    the turning point of a bounce); ``2 n_passive`` equalities (m/s, rad/s, m/s^2, rad/s^2;
+    accelerations multiplied by ``accel_scale`` s). With ``tol`` (a number or a problem
+    parameter's name) they become the inequalities ``|value| <= tol`` instead (a landing
+    tolerance that a solve plan can tighten: switching on equalities that are far from
+    satisfied makes SLSQP take radian-sized steps)."""
 
     kind = "eq"
 
-    def __init__(self, acceleration=True, accel_scale=0.1, stage=0, name="at_rest"):
-        self.acceleration, self.accel_scale = bool(acceleration), float(accel_scale)
+    def __init__(self, acceleration=True, accel_scale=0.1, tol=None, stage=0, name="at_rest"):
+        self.acceleration, self.accel_scale, self.tol = bool(acceleration), float(accel_scale), tol
+        self.kind = "eq" if tol is None else "ineq"
         self.stage, self.name = int(stage), name
 
     def check(self, problem):
@@ -88,11 +92,15 @@ class AtRest(Constraint):
         out = [end["v"][self._vp]]
         if self.acceleration:
             out.append(self.accel_scale * end["a"][self._vp])
-        return jnp.concatenate(out)
+        e = jnp.concatenate(out)
+        if self.tol is None:
+            return e
+        tol = resolve(self.tol, ctx.params)
+        return jnp.concatenate([tol - e, tol + e])
 
     def describe(self):
         return {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
-                "stage": self.stage}
+                "tol": self.tol, "stage": self.stage}
 
 
 class ForwardDistance(Constraint):
@@ -282,17 +290,27 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
 
 def keyframe_guess(keyframes, t_final, names):
     """``{joint: (t, values)}`` samples for `MotionProblem`'s ``initial_guess``: the
-    keyframe postures ``(fraction of t_final, (angle per joint))`` interpolated linearly on
-    400 points."""
-    ts = np.array([k[0] for k in keyframes]) * float(t_final)
+    keyframe postures ``(fraction of t_final, (angle per joint))`` joined by smoothstep
+    ramps (``3 s^2 - 2 s^3``: at rest at every keyframe) on 400 points."""
+    ts = np.array([k[0] for k in keyframes], float) * float(t_final)
     P = np.array([k[1] for k in keyframes], dtype=float)
     tt = np.linspace(0.0, float(t_final), 400)
-    return {n: (tt, np.interp(tt, ts, P[:, j])) for j, n in enumerate(names)}
+    k = np.clip(np.searchsorted(ts, tt, side="right") - 1, 0, len(ts) - 2)
+    s = np.clip((tt - ts[k]) / (ts[k + 1] - ts[k]), 0.0, 1.0)
+    w = (s * s * (3.0 - 2.0 * s))[:, None]
+    vals = P[k] + (P[k + 1] - P[k]) * w
+    return {n: (tt, vals[:, j]) for j, n in enumerate(names)}
+
+
+#: the default landing ramp of `hop_problem`: (fraction of the distance, landing tolerance)
+RAMP = ((1 / 3, 0.05), (2 / 3, 0.02), (5 / 6, 0.01), (0.91625, 0.01), (1.0, 0.01), (1.0, 0.005), (1.0, 0.002),
+        (1.0, 5e-4))
 
 
 def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ctrl, dt, clearance, max_pitch,
                 w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
-                intermediate_max_iter=60, n_path_samples=50, trust=0.5):
+                intermediate_max_iter=60, n_path_samples=50, trust=1.0, margin=1.0, first_step=None,
+                land_tol=1e-6, ramp=None, max_penetration=0.01):
     """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
     that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
     root_z, root_pitch`` then the active joints) and ends in the same posture, at rest,
@@ -302,24 +320,38 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
     - active joints ``active``: quintic B-splines (``n_ctrl`` control points), start and
       end at their ``q_rest`` values at rest (by construction);
     - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight ``w_land``, a
-      problem parameter; ramped by the schedule);
+      problem parameter; at the solution, where the landing constraints hold, it is 0);
     - constraints, stage 0: `ForwardDistance` (``distance``), joint position limits and
       `ScaledTorqueLimits` (sampled), `FlightClearance` (``clearance``: a flight phase,
       not scheduled), `PitchBound` (``|pitch - pitch_rest| <= max_pitch``);
-      stage 1: `AtRest` (base velocity 0 at ``t_final``) and the terminal base height and
-      pitch equal to ``q_rest``'s (with the active joints at rest in their rest posture
-      this is the standing equilibrium, so the end is static);
-    - initial guess: `keyframe_guess` of ``keyframes``, its control points clipped into
-      the joint limits;
+      stage 1: the landing at rest, `AtRest` (base velocities at ``t_final``) and the
+      terminal base height and pitch of ``q_rest``, each within ``land_tol`` (m, rad,
+      m/s, rad/s; a problem parameter, default 1e-6). With the active joints at rest in
+      their rest posture this is the standing equilibrium up to ``land_tol`` (the base
+      acceleration at ``T`` is then about ``k land_tol / m``: 2e-3 m/s^2 for the hopper);
+    - initial guess: `keyframe_guess` of ``keyframes``;
     - variable bounds (``problem.x_bounds``): every free control point within ``trust``
-      rad of the guess's and within the joint's limits (a box trust region: SLSQP's first
-      quasi-Newton steps otherwise move control points by radians and throw the robot
-      over, where the linearized contact constraints mean nothing);
-    - solve plan ``schedule`` (``[{"params": {...}, "level": k}, ...]``; default: stage 0
-      with the distance ramped 25 %, 50 %, 100 % and ``w_land`` ramped ``w_land * (0.01,
-      0.01, 0.1, 1)``, then stage 1), intermediate stages solved to ``intermediate_tol`` in at most
-      ``intermediate_max_iter`` iterations;
-    - ``problem.success_criteria``: `hop_criteria` with ``min_flight``.
+      rad of the guess's and within ``margin`` rad of the joint's limits. A box trust
+      region: SLSQP's first quasi-Newton steps otherwise move control points by radians
+      and throw the robot over, where the linearized contact constraints mean nothing.
+      The control points of a quintic spline that moves fast (a push-off in 0.15 s with
+      knots 0.1 s apart) lie well outside the range of the path itself, so bounding them
+      by the joint limits (`cstorm.optimize.solve.variable_bounds`' default) would forbid a
+      hop; the path's limits are the sampled `JointLimits` constraints instead;
+    - solve plan ``schedule`` (``[{"params": {...}, "level": k}, ...]``; default: a
+      third of the distance with the landing as the penalty only (stage 0; ``w_land``
+      ramped 1 %, 10 %, then 100 % from here on), then with the landing constraints
+      (stage 1) along ``ramp`` (``(fraction of the distance, landing tolerance)`` pairs,
+      default `RAMP`: the distance ramped to 100 % at a 1 cm tolerance, then the
+      tolerance tightened 5, 2, 0.5 mm), then ``land_tol``: the robot first learns to land
+      at rest, then to go further, then to land precisely, and no stage starts far from
+      its constraints; changing distance and tolerance in one stage made SLSQP diverge),
+      intermediate stages solved to
+      ``intermediate_tol`` in at most ``intermediate_max_iter`` iterations; with
+      ``first_step`` (rad) SLSQP's first step of each stage is about that long (see
+      `cstorm.solve`'s ``objective_scale``), not a radian;
+    - ``problem.success_criteria``: `hop_criteria` with ``min_flight`` (s) and
+      ``max_penetration`` (m).
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
     from ..environment import Environment, ground
     from ..optimize import costs, constraints
@@ -334,38 +366,41 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         costs=[costs.TorqueSquared(weight=1.0), LandingPenalty("w_land", dict(root_z=z_rest, root_pitch=pitch_rest))],
         constraints=[
             ForwardDistance("distance"),
-            AtRest(acceleration=False, stage=1),
-            constraints.TerminalState("root_z", q=z_rest, stage=1),
-            constraints.TerminalState("root_pitch", q=pitch_rest, stage=1),
+            AtRest(acceleration=False, tol="land_tol", stage=1),
+            constraints.TerminalState("root_z", q=z_rest, kind="ineq", tol="land_tol", stage=1),
+            constraints.TerminalState("root_pitch", q=pitch_rest, kind="ineq", tol="land_tol", stage=1),
             constraints.JointLimits(list(active), velocity=False),
             ScaledTorqueLimits(),
             FlightClearance("clearance"),
             PitchBound("max_pitch", center=pitch_rest),
         ],
-        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land},
+        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
+                "land_tol": land_tol},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active),
     )
     from ..optimize.solve import variable_bounds
 
     lb, ub = variable_bounds(prob)  # the joint limits
-    x0 = np.clip(np.asarray(prob.x0, float), lb, ub)  # the keyframe fit may ring past a limit
-    prob.x0 = x0
-    prob.x_bounds = (np.maximum(lb, x0 - trust), np.minimum(ub, x0 + trust))
+    x0 = np.asarray(prob.x0, float)
+    prob.x_bounds = (np.maximum(lb - margin, x0 - trust), np.minimum(ub + margin, x0 + trust))
     d_on = float(np.max(np.asarray(contact.d_on)))
 
     def criteria(solution):
         return hop_criteria(prob, solution, distance=distance, min_flight=min_flight, z_rest=z_rest,
-                            pitch_rest=pitch_rest, d_on=d_on)
+                            pitch_rest=pitch_rest, d_on=d_on, max_penetration=max_penetration)
 
     prob.success_criteria = criteria
     if schedule is None:
-        schedule = [dict(params=dict(distance=distance * 0.25, w_land=w_land * 0.01), level=0),
-                    dict(params=dict(distance=distance * 0.5, w_land=w_land * 0.01), level=0),
-                    dict(params=dict(distance=distance, w_land=w_land * 0.1), level=0),
-                    dict(params=dict(distance=distance, w_land=w_land), level=0),
-                    dict(params=dict(distance=distance, w_land=w_land), level=1)]
+        d0 = distance / 3.0
+        ramp = RAMP if ramp is None else ramp
+        schedule = [dict(params=dict(distance=d0, w_land=w_land * 0.01), level=0),
+                    dict(params=dict(distance=d0, w_land=w_land * 0.1), level=0)] + [
+            dict(params=dict(distance=distance * f, land_tol=tl), level=1) for f, tl in ramp] + [
+            dict(params=dict(distance=distance, land_tol=land_tol), level=1)]
     if schedule:
         prob.solve_options["schedule"] = schedule
         prob.solve_options.update(intermediate_tol=intermediate_tol, intermediate_max_iter=intermediate_max_iter)
+    if first_step is not None:
+        prob.solve_options["first_step"] = float(first_step)
     return prob

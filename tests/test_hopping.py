@@ -1,0 +1,132 @@
+"""The hopping examples `hopper` and `luxo` (issue 6): registration, their stored rest
+states are equilibria with the contact active, the problems build, a rollout of the
+default initial guess is sane (finite, no limb through the floor), the values and
+Jacobian at the guess are finite, the criteria are reported; the full solves are slow.
+
+Each problem is built once per module (fixture) so that its trajectory and values+Jacobian
+functions compile once.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+
+import cstorm as cs
+from cstorm.examples._hopping import flight_time, soft_clearance
+from cstorm.examples._planar import capsule_inertia, longest_run
+
+NAMES = ("hopper", "luxo")
+
+
+def _module(name):
+    return importlib.import_module(f"cstorm.examples.{name}")
+
+
+@pytest.fixture(scope="module", params=NAMES)
+def problem(request):
+    return cs.examples.get(request.param)()
+
+
+def test_registered():
+    for n in NAMES:
+        assert n in cs.examples.names()
+        assert cs.examples.get(n) is getattr(cs.examples, n)
+
+
+def test_problem_structure(problem):
+    m = _module(problem.name)
+    assert problem.model.joint_names[:3] == ("root_x", "root_z", "root_pitch")
+    assert problem.active == m.ACTIVE
+    assert problem.n_levels == 2
+    assert callable(problem.success_criteria)
+    sched = problem.solve_options["schedule"]
+    assert sched[-1]["level"] == 1 and sched[-1]["params"]["distance"] == pytest.approx(problem.params["distance"])
+    q0 = np.asarray(problem.q0)
+    assert q0[1] == pytest.approx(m.REST_Z) and q0[2] == pytest.approx(m.REST_PITCH)
+
+
+def test_guess_rollout_is_sane(problem):
+    """The default initial guess starts at rest in the contact equilibrium (the base does
+    not move before the legs do), stays finite and keeps every contact point within 1 cm
+    of the ground surface (no limb through the floor)."""
+    tr = problem.compiled("trajectory")(problem.x0, problem.data())
+    q, v = np.asarray(tr["q"]), np.asarray(tr["v"])
+    d = np.asarray(tr["contact"].d)
+    assert not bool(tr["diverged"])
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(v))
+    # rest_start (zero initial joint acceleration) from the stored equilibrium: the base
+    # does not accelerate at t = 0
+    assert np.max(np.abs(np.asarray(tr["a"])[0, :3])) < 1e-8
+    assert np.min(d) > -0.01
+    # the rest state: every contact force balances gravity
+    N = np.asarray(tr["contact"].normal_magnitude)[0]
+    weight = float(np.sum(np.asarray(problem.model.mass))) * 9.81
+    assert np.sum(N) == pytest.approx(weight, rel=1e-6)
+
+
+def test_values_and_jacobian_finite(problem):
+    f, ce, ci, div, g, Je, Ji = problem.compiled("fun_jac")(problem.x0, problem.data())
+    assert not bool(div)
+    for a in (f, ce, ci, g, Je, Ji):
+        assert np.all(np.isfinite(np.asarray(a)))
+    assert np.asarray(Ji).shape == (problem.n_ineq, problem.n_vars)
+    assert np.linalg.norm(np.asarray(g)) > 0
+
+
+def test_soft_clearance_bounds():
+    rng = np.random.default_rng(0)
+    d = rng.uniform(-0.01, 0.1, size=(40, 6))
+    true = np.max(np.min(d, axis=1))
+    s = float(soft_clearance(d, 1e-3, 2e-3))
+    assert true - 1e-3 * np.log(6) - 1e-12 <= s <= true + 2e-3 * np.log(40) + 1e-12
+
+
+def test_flight_time_and_longest_run():
+    t = np.linspace(0.0, 1.0, 11)
+    flag = np.array([0, 1, 1, 1, 0, 0, 1, 1, 0, 0, 0], bool)
+    assert longest_run(t, flag) == pytest.approx((0.3, 0.2))
+    d = np.where(flag[:, None], 0.05, 0.0) * np.ones((11, 3))
+    assert flight_time(t, d, 0.01) == pytest.approx((0.3, 0.2))
+
+
+def test_capsule_inertia_mass_form():
+    """Given the mass instead of the density, the same capsule."""
+    m, I = capsule_inertia(0.02, 0.1, density=800.0)
+    m2, I2 = capsule_inertia(0.02, 0.1, mass=m)
+    assert m2 == pytest.approx(m, rel=1e-14)
+    np.testing.assert_allclose(I2, I, rtol=1e-13)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["luxo", pytest.param("hopper", marks=pytest.mark.xfail(
+    reason="not solved yet: SLSQP diverges when the landing tolerance is tightened below 2.5e-4 (see the "
+           "hopper module docstring)", strict=False))])
+def test_full_solve_meets_criteria(name, tmp_path):
+    """`cstorm solve NAME`: the solve plan converges from the default guess and every
+    success criterion and the fidelity check hold."""
+    from cstorm import report
+
+    p = cs.examples.get(name)()
+    sol = cs.solve(p)
+    assert sol.success, sol.message
+    crit = p.success_criteria(sol)
+    assert all(c["ok"] for c in crit.values()), crit
+    fid = report.fidelity(p, sol)
+    assert fid["ok"], fid["flags"]
+
+
+def test_first_step_scales_the_auto_objective_scale():
+    """``solve_options["first_step"]`` (used by the hopping problems) scales SLSQP's
+    first step: the auto objective scale is ``first_step / |grad f|_inf``."""
+    from cstorm.optimize.solve import _objective_scale
+
+    class Ev:
+        def at(self, x):
+            return (0.0, None, None, False, np.array([0.5, -4.0]))
+
+    assert _objective_scale("auto", Ev(), None) == pytest.approx(0.25)
+    assert _objective_scale("auto", Ev(), None, 0.1) == pytest.approx(0.025)
+    assert _objective_scale(None, Ev(), None, 0.1) == 1.0

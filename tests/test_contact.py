@@ -137,6 +137,101 @@ _BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz
 
 
 # ---------------------------------------------------------------------------------------
+# Box obstacles (platform tops, steps): one force per robot feature
+# ---------------------------------------------------------------------------------------
+
+TOP = 0.2  # platform top height
+PLAT_ENV = Environment([platform(TOP, center=(0.0, 0.0), size=(1.0, 1.0))])
+
+
+def test_box_resting_on_a_platform_top_is_held_at_its_four_corners():
+    """A box resting flat on a platform top gets four equal forces at its lower corners
+    (the same as on the ground at the same penetration), no torque about its centre, and
+    keeps them while it slides across the top; half over the edge, only the two corners
+    above the top push. With contact='near_point' the same box gets one force."""
+    pen = 0.002
+    z = TOP + HALF[2] - pen
+    N_one = float(normal_force(-pen, 0.0, P))
+    for x in (0.0, 0.13, -0.31):  # sliding across the top: the same four forces
+        out = _cf(BOX, PLAT_ENV, P, jnp.array([x, z, 0.0]), jnp.zeros(3))
+        assert out.labels == tuple(("box", "platform", j) for j in range(8))
+        N = np.asarray(out.normal_magnitude)
+        on = N > 0
+        assert on.sum() == 4
+        np.testing.assert_allclose(N[on], N_one, rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(out.n)[on], np.tile([0.0, 0.0, 1.0], (4, 1)), atol=1e-15)
+        np.testing.assert_allclose(np.asarray(out.p_obstacle)[on][:, 2], TOP, atol=1e-15)
+        f = np.asarray(out.f_ext)[-1]  # [torque about the world origin; force] of the box body
+        c = np.array([x, 0.0, z])
+        np.testing.assert_allclose(f[3:], [0.0, 0.0, 4 * N_one], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(f[:3] - np.cross(c, f[3:]), 0.0, atol=1e-12)  # no torque about the centre
+        ref = _cf(BOX, Environment([ground(TOP)]), P, jnp.array([x, z, 0.0]), jnp.zeros(3))
+        np.testing.assert_allclose(np.asarray(out.f_ext), np.asarray(ref.f_ext), rtol=1e-12, atol=1e-12)
+    out = _cf(BOX, PLAT_ENV, P, jnp.array([0.55, z, 0.0]), jnp.zeros(3))  # over the edge x = 0.5
+    N = np.asarray(out.normal_magnitude)
+    assert (N > 0).sum() == 2  # the corners at x = 0.45; those at x = 0.65 are 0.15 m beside the side face
+    np.testing.assert_allclose(N[N > 0], N_one, rtol=1e-12)
+    # one near-point pair instead, and both together
+    env1 = Environment([platform(TOP, size=(1.0, 1.0), contact="near_point")])
+    out = contact_forces(BOX, env1, P, jnp.array([0.13, z, 0.0]), jnp.zeros(3))
+    assert out.labels == (("box", "platform", -1),)
+    np.testing.assert_allclose(out.d, [-pen], atol=1e-10)
+    env2 = Environment([platform(TOP, size=(1.0, 1.0), contact="both")])
+    assert contact_labels(BOX, env2) == tuple(("box", "platform", j) for j in range(8)) + (("box", "platform", -1),)
+
+
+def test_features_on_box_obstacles_capsule_cylinder_and_per_pair_parameters():
+    """A capsule lying on a step gets two equal forces (its end spheres), an upright
+    cylinder on a box its bottom rim; per-pair parameters apply to box-obstacle features."""
+    b = cs.ModelBuilder("shapes")
+    b.add_link("body", mass=4.0, inertia=np.eye(3))
+    b.add_geom("body", cs.Capsule(0.05, 0.4), rpy=(0, np.pi / 2, 0), name="capsule")
+    b.add_geom("body", cs.Cylinder(0.1, 0.1), xyz=(0, 1, 0), name="cylinder")
+    m = b.build(floating_base="planar")
+    env = Environment([step(TOP, x=-1.0, length=3.0, width=4.0), sphere(0.05, (0.0, 0.0, -1.0), name="rock")])
+    q = jnp.array([0.3, TOP + 0.05 - 0.002, 0.0])
+    out = contact_forces(m, env, P, q, jnp.zeros(3))
+    lab = out.labels
+    assert [lb for lb in lab if lb[1] == "rock"] == [("capsule", "rock", -1), ("cylinder", "rock", -1)]
+    N = np.asarray(out.normal_magnitude)
+    N_one = float(normal_force(-0.002, 0.0, P))
+    for geom, n_on in (("capsule", 2), ("cylinder", 8)):
+        Ng = np.array([N[i] for i, lb in enumerate(lab) if lb[:2] == (geom, "step")])
+        np.testing.assert_allclose(Ng[Ng > 0], N_one, rtol=1e-12)
+        assert (Ng > 0).sum() == n_on
+    stiff = P.replace(stiffness=4000.0)
+    out2 = contact_forces(m, env, {("capsule", "step"): stiff, ("*", "*"): P}, q, jnp.zeros(3))
+    N2 = np.asarray(out2.normal_magnitude)
+    cap = np.array([lb[:2] == ("capsule", "step") for lb in lab])
+    np.testing.assert_allclose(N2[cap & (N2 > 0)], float(normal_force(-0.002, 0.0, stiff)), rtol=1e-12)
+    np.testing.assert_allclose(N2[~cap], N[~cap], rtol=1e-14)
+
+
+_box_jac = jax.jit(jax.jacfwd(lambda q, v: _flat(contact_forces(BOX, PLAT_ENV, P, q, v)), argnums=(0, 1)))
+
+
+def test_box_on_platform_gradients_match_finite_differences():
+    """Derivatives of the box-obstacle feature contacts w.r.t. q and v: flat on the top
+    at zero slip, tilted near the edge (corners beside the side face: the normal turns
+    round the edge) while sliding, and a corner pressed into the side face."""
+    f = lambda q, v: np.asarray(_flat(_cf(BOX, PLAT_ENV, P, q, v)))  # noqa: E731
+    cases = [(np.array([0.1, TOP + HALF[2] - 0.002, 0.0]), np.zeros(3)),
+             (np.array([0.407, TOP + 0.0612, 0.1]), np.array([0.4, -0.1, 0.5])),  # corners 2 mm off the edge
+             (np.array([0.57, TOP - 0.02, 0.2]), np.array([-0.2, 0.05, -0.3]))]
+    for q, v in cases:
+        Jq, Jv = (np.asarray(J) for J in _box_jac(q, v))
+        assert np.all(np.isfinite(Jq)) and np.all(np.isfinite(Jv))
+        h = 1e-7
+        fdq = np.stack([(f(q + h * e, v) - f(q - h * e, v)) / (2 * h) for e in np.eye(3)], axis=1)
+        fdv = np.stack([(f(q, v + h * e) - f(q, v - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+        assert np.abs(fdq).max() > 10.0  # contact is active
+        print(f"box on platform: FD rel error dq {np.abs(Jq - fdq).max() / np.abs(fdq).max():.2e}, "
+              f"dv {np.abs(Jv - fdv).max() / max(np.abs(fdv).max(), 1e-12):.2e}")
+        np.testing.assert_allclose(Jq, fdq, rtol=0, atol=1e-6 * np.abs(fdq).max())
+        np.testing.assert_allclose(Jv, fdv, rtol=0, atol=1e-6 * max(np.abs(fdv).max(), 1.0))
+
+
+# ---------------------------------------------------------------------------------------
 # A multi-body robot: near-point pairs, self-collision, J^T f, gradients
 # ---------------------------------------------------------------------------------------
 
@@ -179,7 +274,7 @@ def test_robot_contacts_are_active_and_self_collision_is_equal_and_opposite():
     out = _cf(ROBOT, ROBOT_ENV, ROBOT_P, qa, np.zeros(7))
     lab = {lb: i for i, lb in enumerate(out.labels)}
     d = np.asarray(out.d)
-    assert d[lab[("hand", "step", -1)]] < 0.01 and d[lab[("hand", "ground", 0)]] < 0.01
+    assert d[lab[("hand", "step", 0)]] < 0.01 and d[lab[("hand", "ground", 0)]] < 0.01
     assert sum(d[i] < 0.01 for lb, i in lab.items() if lb[:2] == ("base_box", "ground")) == 4
     out = _cf(ROBOT, ROBOT_ENV, ROBOT_P, qb, vb)
     i = out.labels.index(("base_box", "hand", -1))
@@ -393,3 +488,9 @@ def test_bad_input_errors_name_the_culprit():
         contact_forces(BALL, [ground()], P, np.zeros(3), np.zeros(3))
     with pytest.raises(InputError, match="pose"):
         Obstacle(cs.Sphere(1.0), pose=np.ones((4, 4)))
+    with pytest.raises(InputError, match="contact must be one of"):
+        platform(0.1, contact="corners")
+    with pytest.raises(InputError, match="'ground'.*Plane obstacle takes contact='features' only"):
+        Obstacle(cs.Plane([0, 0, 1], 0.0), name="ground", contact="near_point")
+    with pytest.raises(InputError, match="'blob'.*ConvexMesh"):
+        Obstacle(cs.ConvexMesh(_BOX_CORNERS), name="blob", contact="features")

@@ -307,6 +307,7 @@ from typing import NamedTuple as _NamedTuple
 from . import _pytree
 from .environment import Environment
 from .errors import InputError
+from .geometry.closed_form import point_shape
 from .geometry.distance import signed_distance
 from .geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
 from .dynamics import _checks
@@ -359,7 +360,8 @@ def _features(shape, n_rim: int):
 
 
 class _Layout(_NamedTuple):
-    plane_pairs: tuple  # (geom index, obstacle index, n features)
+    plane_pairs: tuple  # (geom index, obstacle index, n features): features vs a Plane
+    shape_pairs: tuple  # (geom index, obstacle index, n features): features vs a bounded obstacle
     near_pairs: tuple  # (geom index, obstacle index)
     self_pairs: tuple  # (geom index a, geom index b)
     labels: tuple  # per point: (geom name, obstacle or other geom name, feature index or -1)
@@ -427,15 +429,18 @@ def _layout(model, env: Environment) -> _Layout:
                                 f"{model.body_names[model.geom_bodies[a]]!r}")
                         continue
                     self_sel.add((min(a, b), max(a, b)))
-    plane_pairs, near_pairs = [], []
+    plane_pairs, shape_pairs, near_pairs = [], [], []
     for g, o in sel:
-        if isinstance(env.obstacles[o].shape, Plane):
-            plane_pairs.append((g, o, _n_features(model.geoms[g], env.cylinder_rim_points)))
-        else:
+        ob = env.obstacles[o]
+        mode = getattr(ob, "contact", None) or ("features" if isinstance(ob.shape, Plane) else "near_point")
+        if mode in ("features", "both"):
+            m = _n_features(model.geoms[g], env.cylinder_rim_points)
+            (plane_pairs if isinstance(ob.shape, Plane) else shape_pairs).append((g, o, m))
+        if mode in ("near_point", "both"):
             near_pairs.append((g, o))
     self_pairs = sorted(self_sel)
     labels, body, other, pairs = [], [], [], []
-    for g, o, m in plane_pairs:
+    for g, o, m in plane_pairs + shape_pairs:
         for j in range(m):
             labels.append((gnames[g], onames[o], j)), body.append(model.geom_bodies[g]), other.append(-1)
             pairs.append((gnames[g], onames[o]))
@@ -445,8 +450,8 @@ def _layout(model, env: Environment) -> _Layout:
     for a, b in self_pairs:
         labels.append((gnames[a], gnames[b], -1)), body.append(model.geom_bodies[a])
         other.append(model.geom_bodies[b]), pairs.append((gnames[a], gnames[b]))
-    return _Layout(tuple(plane_pairs), tuple(near_pairs), tuple(self_pairs), tuple(labels), tuple(body),
-                   tuple(other), tuple(pairs))
+    return _Layout(tuple(plane_pairs), tuple(shape_pairs), tuple(near_pairs), tuple(self_pairs), tuple(labels),
+                   tuple(body), tuple(other), tuple(pairs))
 
 
 def contact_labels(model, env: Environment) -> tuple:
@@ -581,7 +586,8 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
       normal_magnitude, normal_force, friction_force`` and ``f_ext`` (n_bodies, 6).
 
     Contact points (``k`` in all, static; order: plane pairs with their features, then
-    near-point pairs, then self-collision pairs; pairs in (geom, obstacle) index order):
+    feature pairs against other obstacles (boxes), then near-point pairs, then
+    self-collision pairs; pairs in (geom, obstacle) index order within each group):
 
     - Robot geom vs a `Plane` obstacle (ground, incline): one point per feature, each
       the ball ``(centre c, radius r)`` whose distance to the plane
@@ -597,10 +603,18 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
           ``radius (1 - cos(pi / n))`` (7.6 % of the radius for n = 8) as it rolls;
           raise ``n`` or use a capsule for wheels;
         * `ConvexMesh`: every vertex (r = 0).
-    - Robot geom vs any other obstacle (a box step, a sphere): one near-point pair from
+    - Robot geom vs a bounded obstacle whose ``contact`` is ``"features"`` (the default
+      for boxes: `cstorm.environment.box`, ``platform``, ``step``) or ``"both"``: the
+      same features, each with the closed-form signed distance of its centre to the
+      obstacle minus its radius (`cstorm.geometry.closed_form.point_shape`), robot point
+      ``c - r n``, obstacle point the nearest surface point. A box resting on a platform
+      top is thus held at its four lower corners, like on the ground; near the
+      obstacle's edges the normal turns round the edge (C1 outside the obstacle; inside,
+      where the nearest face changes, values are continuous and derivatives finite).
+    - Robot geom vs an obstacle whose ``contact`` is ``"near_point"`` (the default for
+      spheres, capsules, cylinders and meshes) or ``"both"``: one near-point pair from
       `cstorm.signed_distance` (robot shape as ``a``, obstacle as ``b``), so it jumps
-      between witnesses where the nearest feature changes (a box resting on a
-      platform top is held at one point).
+      between witnesses where the nearest feature changes.
     - Self-collision pairs (opt-in): one near-point pair; the force ``f`` on body a and
       ``-f`` on body b both act at the midpoint of the witness points (no net wrench),
       ``velocity`` is that of a relative to b at that point.
@@ -665,6 +679,19 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
         pr = x - rad[:, None] * Nw
         d = jnp.sum(Nw * x, axis=1) - rad - off
         ds.append(d), p_rob.append(pr), p_obs.append(pr - d[:, None] * Nw), ns.append(Nw)
+        vel.append(point_velocity(bidx, pr)), app.append(pr)
+    # --- features vs bounded obstacles (boxes: platform tops, steps) ---------------------
+    for g, o, m in lay.shape_pairs:
+        ob = env.obstacles[o]
+        Pl, r = _features(model.geoms[g], env.cylinder_rim_points)
+        Tg = model.geom_poses[g]
+        b = model.geom_bodies[g]
+        x = (Pl @ Tg[:3, :3].T + Tg[:3, 3]) @ Rw[b].T + pw[b]  # (m, 3) feature centres, world
+        dc, po, nn = jax.vmap(lambda xi: point_shape(xi, ob.shape, ob.pose[:3, :3], ob.pose[:3, 3]))(x)
+        d = dc - r
+        pr = x - r[:, None] * nn
+        bidx = np.full(m, b)
+        ds.append(d), p_rob.append(pr), p_obs.append(po), ns.append(nn)
         vel.append(point_velocity(bidx, pr)), app.append(pr)
     # --- near-point pairs (robot geom vs a bounded obstacle) ---------------------------
     def geom_pose(g):

@@ -25,6 +25,18 @@ Frames and conventions
   name patterns ``(geom_a, geom_b)``. Pairs of geoms on the same body are never used.
 - Geoms attached to the world (``geom_bodies == -1``) and robot geoms that are planes
   are ignored by the default selection; naming them explicitly in ``pairs`` is an error.
+- How an obstacle makes contact (`Obstacle`'s ``contact``, static): ``"features"`` — each
+  contact feature of a robot shape (capsule end spheres, box corners, cylinder rim
+  points, mesh vertices, a sphere's centre) gets its own force from its signed distance
+  to the obstacle, so a flat robot face resting on a flat obstacle face (the ground, a
+  platform top, a step) is held at several points; ``"near_point"`` — one near-point
+  pair between the robot shape and the obstacle (`cstorm.signed_distance`);
+  ``"both"`` — the two together. Defaults: features for planes (the only choice) and
+  boxes, a near-point pair for every other obstacle. Features see only the robot's
+  feature points: a capsule lying across a box's edge between its end spheres, or a box
+  corner pressing into the middle of a robot face, is felt only with ``"both"`` or
+  ``"near_point"`` (``"both"`` counts a flat rest twice: the features and the near-point
+  pair each push).
 """
 
 from __future__ import annotations
@@ -36,7 +48,7 @@ import jax.numpy as jnp
 
 from ._pytree import pytree_dataclass, is_concrete
 from .errors import InputError
-from .geometry.shapes import Box, Plane, Shape, Sphere
+from .geometry.shapes import Box, Capsule, Cylinder, Plane, Shape, Sphere
 
 __all__ = ["Obstacle", "Environment", "ground", "incline", "box", "platform", "step", "sphere"]
 
@@ -83,7 +95,11 @@ def _rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
-@pytree_dataclass(meta=("name",))
+CONTACT_MODES = ("features", "near_point", "both")
+_FEATURE_OBSTACLES = (Plane, Box, Sphere, Capsule, Cylinder)  # closed-form point distances
+
+
+@pytree_dataclass(meta=("name", "contact"))
 class Obstacle:
     """A static shape placed in the world (a JAX pytree).
 
@@ -92,17 +108,33 @@ class Obstacle:
         `Plane`), in its own frame.
       pose: (4, 4) world from shape (default identity).
       name: unique within an `Environment` (static).
+      contact: static, how robot shapes touch it: ``"features"``, ``"near_point"`` or
+        ``"both"`` (see the module docstring); None (default) picks ``"features"`` for a
+        `Plane` or `Box`, ``"near_point"`` otherwise. A `Plane` takes only
+        ``"features"``; a `ConvexMesh` obstacle only ``"near_point"``.
     """
 
     shape: Shape
     pose: jnp.ndarray = None
     name: str = "obstacle"
+    contact: str = None
 
     def __post_init__(self):
         if not isinstance(self.shape, Shape):
             raise InputError(f"Obstacle {self.name!r}: shape must be a cstorm shape, got {type(self.shape).__name__}")
         if not isinstance(self.name, str) or not self.name:
             raise InputError(f"Obstacle: name must be a non-empty string, got {self.name!r}")
+        mode = self.contact
+        if mode is None:
+            mode = "features" if isinstance(self.shape, (Plane, Box)) else "near_point"
+        if mode not in CONTACT_MODES:
+            raise InputError(f"Obstacle {self.name!r}: contact must be one of {CONTACT_MODES} or None, got {mode!r}")
+        if isinstance(self.shape, Plane) and mode != "features":
+            raise InputError(f"Obstacle {self.name!r}: a Plane obstacle takes contact='features' only, got {mode!r}")
+        if mode != "near_point" and not isinstance(self.shape, _FEATURE_OBSTACLES):
+            raise InputError(f"Obstacle {self.name!r}: contact={mode!r} needs a Plane, Box, Sphere, Capsule or "
+                             f"Cylinder obstacle, got a {type(self.shape).__name__}; use 'near_point'")
+        object.__setattr__(self, "contact", mode)
         object.__setattr__(self, "pose", _pose(np.eye(4) if self.pose is None else self.pose,
                                                where=f"Obstacle {self.name!r}"))
 
@@ -201,32 +233,38 @@ def incline(angle, axis=(0.0, 1.0, 0.0), height=0.0, name: str = "incline") -> O
                     name=name)
 
 
-def box(half_extents, position=(0.0, 0.0, 0.0), R=None, name: str = "box") -> Obstacle:
+def box(half_extents, position=(0.0, 0.0, 0.0), R=None, name: str = "box", contact: str = "features") -> Obstacle:
     """A box obstacle: half extents (3,) m along its axes, centre at ``position`` (3,)
-    world, orientation ``R`` (3, 3) world from box (default identity)."""
+    world, orientation ``R`` (3, 3) world from box (default identity). ``contact``: see
+    `Obstacle` (default ``"features"``: one force per robot contact feature)."""
     return Obstacle(Box(np.asarray(half_extents, dtype=float)), pose=_pose(xyz=position, R=R, where=f"box {name!r}"),
-                    name=name)
+                    name=name, contact=contact)
 
 
-def platform(height, center=(0.0, 0.0), size=(1.0, 1.0), depth=None, name: str = "platform") -> Obstacle:
+def platform(height, center=(0.0, 0.0), size=(1.0, 1.0), depth=None, name: str = "platform",
+             contact: str = "features") -> Obstacle:
     """An axis-aligned box whose top face is at ``z = height`` (m), centred at ``center``
     (x, y) with full side lengths ``size`` (x, y); it extends ``depth`` below its top
-    (default ``height``, i.e. down to z = 0, or 1 m if ``height <= 0``)."""
+    (default ``height``, i.e. down to z = 0, or 1 m if ``height <= 0``). ``contact``: see
+    `Obstacle` (default ``"features"``)."""
     h = float(height)
     dp = float(depth) if depth is not None else (h if h > 0 else 1.0)
     if dp <= 0:
         raise InputError(f"platform {name!r}: depth must be > 0, got {dp}")
     sx, sy = (float(s) for s in size)
-    return box((0.5 * sx, 0.5 * sy, 0.5 * dp), (float(center[0]), float(center[1]), h - 0.5 * dp), name=name)
+    return box((0.5 * sx, 0.5 * sy, 0.5 * dp), (float(center[0]), float(center[1]), h - 0.5 * dp), name=name,
+               contact=contact)
 
 
-def step(height, x=0.0, length=2.0, width=2.0, name: str = "step") -> Obstacle:
+def step(height, x=0.0, length=2.0, width=2.0, name: str = "step", contact: str = "features") -> Obstacle:
     """A step up of ``height`` (m) whose edge runs along y at ``x`` (m): the box
     ``x <= X <= x + length``, ``|Y| <= width/2``, ``0 <= Z <= height`` (with the ground,
-    a step; alone, a block)."""
-    return platform(height, center=(float(x) + 0.5 * float(length), 0.0), size=(length, width), name=name)
+    a step; alone, a block). ``contact``: see `Obstacle` (default ``"features"``)."""
+    return platform(height, center=(float(x) + 0.5 * float(length), 0.0), size=(length, width), name=name,
+                    contact=contact)
 
 
-def sphere(radius, center=(0.0, 0.0, 0.0), name: str = "sphere") -> Obstacle:
-    """A sphere obstacle of ``radius`` (m) centred at ``center`` (3,) world."""
-    return Obstacle(Sphere(radius), pose=_pose(xyz=center, where=f"sphere {name!r}"), name=name)
+def sphere(radius, center=(0.0, 0.0, 0.0), name: str = "sphere", contact: str = "near_point") -> Obstacle:
+    """A sphere obstacle of ``radius`` (m) centred at ``center`` (3,) world. ``contact``:
+    see `Obstacle` (default ``"near_point"``)."""
+    return Obstacle(Sphere(radius), pose=_pose(xyz=center, where=f"sphere {name!r}"), name=name, contact=contact)

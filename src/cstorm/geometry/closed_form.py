@@ -9,9 +9,9 @@ coordinates: ``d`` scalar (< 0 when penetrating), witness points ``p_a`` (3,) on
 ``p_b`` (3,) on b, ``n`` (3,) unit normal from b towards a, with ``p_a - p_b = d n``.
 
 Ties (documented choices; values and gradients stay finite):
-- a face or edge parallel to a plane: the witness is the centre of the tied feature
-  (box face or edge centre, cylinder cap centre or side-line midpoint, capsule centre);
-  for a mesh, the lowest-index deepest vertex;
+- a face or edge parallel to a plane (to 1e-12 in the direction cosines): the witness
+  is the centre of the tied feature (box face or edge centre, cylinder cap centre or
+  side-line midpoint, capsule centre); for a mesh, the lowest-index deepest vertex;
 - parallel segments (capsule-capsule): the midpoint of the overlap of their projections,
   or the nearer end when they do not overlap;
 - coincident sphere centres / intersecting capsule axes: ``n = cross(axis_a, axis_b)``
@@ -38,9 +38,14 @@ def _unit_or(v, fallback, eps=_EPS_DIST):
     return jnp.where(ok, v / jnp.where(ok, nv, 1.0), fallback), nv
 
 
+_EPS_TIE = 1e-12  # |component| of a unit direction below which a face or edge is tied
+
+
 def _sign0(x):
-    """+1, -1, or 0 at exactly 0 (centre of a tied feature)."""
-    return jnp.where(x > 0.0, 1.0, jnp.where(x < 0.0, -1.0, 0.0))
+    """+1, -1, or 0 for |x| <= 1e-12 (x a component of a unit direction): the centre of
+    a tied feature, so that a face or edge parallel to a plane up to rounding (a
+    rotation matrix from floating-point angles) still resolves to its centre."""
+    return jnp.where(x > _EPS_TIE, 1.0, jnp.where(x < -_EPS_TIE, -1.0, 0.0))
 
 
 # ----------------------------------------------------------------------------- plane
@@ -58,7 +63,7 @@ def deepest_point(shape, R, t, N):
     if isinstance(shape, Cylinder):
         uxy = u[:2]
         rho = safe_norm(uxy)
-        pos = rho > 0.0
+        pos = rho > _EPS_TIE
         xy = jnp.where(pos, shape.radius * uxy / jnp.where(pos, rho, 1.0), 0.0)
         local = jnp.concatenate([xy, (_sign0(u[2]) * 0.5 * shape.length)[None]])
         return R @ local + t
@@ -130,37 +135,36 @@ def capsule_capsule(shape_a, R_a, t_a, shape_b, R_b, t_b):
     return d, q_a - r_a * n, q_b + r_b * n, n
 
 
-# ----------------------------------------------------------------------------- sphere-box
-def sphere_box(sphere, R_a, t_a, box, R_b, t_b):
-    """Sphere (a) vs box (b)."""
-    h = box.half_extents
-    q = R_b.T @ (t_a - t_b)  # sphere centre in the box frame
+# ----------------------------------------------------------------------------- point-box / point-cylinder
+def point_box(x, R_b, t_b, h):
+    """Signed distance of the world point ``x`` (3,) to the box of half extents ``h`` (3,)
+    at pose ``(R_b, t_b)``: ``(d, p_b, n)`` with ``p_b`` (3,) the nearest surface point,
+    ``n`` (3,) the unit outward normal at it (from the box towards ``x``), ``x - p_b = d n``.
+    Outside: Euclidean distance to the clamped point (C1 in ``x``). Inside: minus the depth
+    below the nearest face (ties: the first face in the order x, y, z; ``+`` side at 0)."""
+    q = R_b.T @ (x - t_b)  # the point in the box frame
     cl = jnp.clip(q, -h, h)
-    delta = q - cl
     outside = jnp.any(jnp.abs(q) > h)
-    n_out, dist = _unit_or(delta, jnp.zeros(3, q.dtype))
-    # inside: nearest face
+    n_out, dist = _unit_or(q - cl, jnp.zeros(3, q.dtype))
     depth = h - jnp.abs(q)
     k = jnp.argmin(depth)
     e = jnp.eye(3, dtype=q.dtype)[k]
     sk = jnp.where(q[k] >= 0.0, 1.0, -1.0)
     n_in = sk * e
     surf_in = q + e * (sk * h[k] - q[k])
-    d_in = -depth[k]
     n_loc = jnp.where(outside & (dist > _EPS_DIST), n_out, n_in)
     surf = jnp.where(outside, cl, surf_in)
-    d_core = jnp.where(outside, dist, d_in)
-    n = R_b @ n_loc
-    p_b = R_b @ surf + t_b
-    r = sphere.radius
-    return d_core - r, t_a - r * n, p_b, n
+    d = jnp.where(outside, dist, -depth[k])
+    return d, R_b @ surf + t_b, R_b @ n_loc
 
 
-# ----------------------------------------------------------------------------- sphere-cylinder
-def sphere_cylinder(sphere, R_a, t_a, cyl, R_b, t_b):
-    """Sphere (a) vs cylinder (b)."""
-    rc, hl = cyl.radius, 0.5 * cyl.length
-    q = R_b.T @ (t_a - t_b)
+def point_cylinder(x, R_b, t_b, radius, length):
+    """Signed distance of the world point ``x`` (3,) to the cylinder (axis local z,
+    ``length`` the full length) at pose ``(R_b, t_b)``: ``(d, p_b, n)`` as in `point_box`.
+    Ties: on the axis the radial direction is local +x; inside at equal depth to the
+    side and a cap, the side."""
+    rc, hl = radius, 0.5 * length
+    q = R_b.T @ (x - t_b)
     qxy, z = q[:2], q[2]
     ex = jnp.array([1.0, 0.0], dtype=q.dtype)
     radial, rho = _unit_or(qxy, ex)
@@ -175,13 +179,48 @@ def sphere_cylinder(sphere, R_a, t_a, cyl, R_b, t_b):
     use_side = side_depth <= cap_depth
     n_in = jnp.where(use_side, jnp.concatenate([radial, jnp.zeros(1, q.dtype)]), jnp.array([0.0, 0.0, 1.0], q.dtype) * sz)
     surf_in = jnp.where(use_side, jnp.concatenate([rc * radial, z[None]]), jnp.concatenate([qxy, (sz * hl)[None]]))
-    d_in = -jnp.minimum(side_depth, cap_depth)
     n_loc = jnp.where(outside & (dist > _EPS_DIST), n_out, n_in)
     surf = jnp.where(outside, cl, surf_in)
-    d_core = jnp.where(outside, dist, d_in)
-    n = R_b @ n_loc
+    d = jnp.where(outside, dist, -jnp.minimum(side_depth, cap_depth))
+    return d, R_b @ surf + t_b, R_b @ n_loc
+
+
+def point_shape(x, shape, R_b, t_b):
+    """Signed distance of the world point ``x`` (3,) to a shape at pose ``(R_b, t_b)``:
+    ``(d, p_b, n)``, ``p_b`` the nearest point of the shape's surface, ``n`` the unit
+    normal from the shape towards ``x``, ``x - p_b = d n`` (``d < 0`` inside). For a
+    `Sphere`, `Capsule`, `Box`, `Cylinder` or `Plane` (closed forms; a point at a
+    sphere's centre or on a capsule's axis gets the normal world +z / local +x)."""
+    if isinstance(shape, Box):
+        return point_box(x, R_b, t_b, shape.half_extents)
+    if isinstance(shape, Cylinder):
+        return point_cylinder(x, R_b, t_b, shape.radius, shape.length)
+    if isinstance(shape, Plane):
+        N = R_b @ shape.normal
+        d = N @ x - shape.offset - N @ t_b
+        return d, x - d * N, N
+    if isinstance(shape, (Sphere, Capsule)):
+        c, u, hl, r = _segment(shape, R_b, t_b)
+        s = jnp.clip(u @ (x - c), -hl, hl)
+        fb = jnp.array([0.0, 0.0, 1.0], x.dtype) if isinstance(shape, Sphere) else R_b[:, 0]
+        n, dist = _unit_or(x - c - s * u, fb)
+        return dist - r, c + s * u + r * n, n
+    raise TypeError(f"no point distance for {type(shape).__name__}")
+
+
+# ----------------------------------------------------------------------------- sphere-box / sphere-cylinder
+def sphere_box(sphere, R_a, t_a, box, R_b, t_b):
+    """Sphere (a) vs box (b): the centre's signed distance minus the radius."""
+    d, p_b, n = point_box(t_a, R_b, t_b, box.half_extents)
     r = sphere.radius
-    return d_core - r, t_a - r * n, R_b @ surf + t_b, n
+    return d - r, t_a - r * n, p_b, n
+
+
+def sphere_cylinder(sphere, R_a, t_a, cyl, R_b, t_b):
+    """Sphere (a) vs cylinder (b): the centre's signed distance minus the radius."""
+    d, p_b, n = point_cylinder(t_a, R_b, t_b, cyl.radius, cyl.length)
+    r = sphere.radius
+    return d - r, t_a - r * n, p_b, n
 
 
 def closed_form_for(shape_a, shape_b):

@@ -8,6 +8,11 @@ meshes as themselves), world frame, same conventions as `signed_distance`. The c
 inflates by the radii.
 
 Touching or flat cases (documented choices, finite values and tangents):
+- when GJK ends within 1e-8 (relative to the shapes' size) of the origin without
+  containing it, the shapes count as touching and EPA decides (its face normal); when
+  it ends on a simplex smaller than the supporting face of the Minkowski difference (a
+  symmetric tie), the face's other vertices are added (`_complete_face`), so that the
+  tangents keep the witnesses on the whole face;
 - cores whose Minkowski difference is flat (point/segment vs point/segment) never run
   EPA: when they touch, ``d = 0`` and ``n`` is the unit centre-to-centre direction (a to
   b reversed), or world +z when the centres coincide; its tangent is zero there;
@@ -46,6 +51,38 @@ def _make_support(core_a, Ra, ta, core_b, Rb, tb):
     return support_m
 
 
+_TOUCH = 1e-8  # |z| / scale below which GJK's result counts as contact (EPA decides)
+_TILT = 1e-6  # rad: tilt of the probe directions that find the other vertices of a face
+
+
+def _complete_face(sm, pts, mask, n, zlen, scale):
+    """Complete GJK's reduced simplex (compacted in 3 slots, ``mask``) to the supporting
+    face of the Minkowski difference M when that face is larger than the simplex.
+
+    GJK reduces its simplex to the smallest one holding the closest point ``z`` (here
+    ``zlen n``); at a symmetric tie (``z`` on a diagonal of a face of M, e.g. a sphere
+    above a box face's centre) that is a segment that is not a face of M, and the
+    implicit tangent would then keep ``z`` on that segment. Probing the support of M in
+    directions ``-n`` tilted by ``_TILT`` finds the other vertices of the face
+    ``{w : w . n = |z|}``; those on it (to 1e-10 scale) and affinely independent of the
+    simplex are added with weight 0. Returns ``(pts, mask)``."""
+    a = jnp.where(jnp.abs(n[0]) < 0.6, jnp.array([1.0, 0.0, 0.0], n.dtype), jnp.array([0.0, 1.0, 0.0], n.dtype))
+    b1 = _unit(jnp.cross(n, a))
+    b2 = jnp.cross(n, b1)
+    for e in (b1, b2, -b1, -b2):
+        c = sm(-n + _TILT * e)
+        cnt = jnp.sum(mask)
+        W = pts.w
+        on = c.w @ n - zlen <= 1e-10 * scale
+        indep1 = safe_norm(c.w - W[0]) > 1e-9 * scale
+        indep2 = safe_norm(jnp.cross(W[1] - W[0], c.w - W[0])) > 1e-9 * scale * scale
+        ok = on & (((cnt == 1) & indep1) | ((cnt == 2) & indep2))
+        slot = jnp.minimum(cnt, 2)
+        pts = SupportPoint(*[jnp.where(ok, x.at[slot].set(y), x) for x, y in zip(pts, c)])
+        mask = mask.at[slot].set(mask[slot] | ok)
+    return pts, mask
+
+
 @functools.lru_cache(maxsize=None)
 def _config(kind_a, kind_b):
     curved = "cylinder" in (kind_a, kind_b)
@@ -79,6 +116,12 @@ def _solve(theta):
     s_lam = simp.lam[order]
     z = simp.v
     contact = status == CONTAINS
+    if not cfg["flat"]:
+        # GJK that stalls within 1e-8 scale of the origin has reached the surface (touching
+        # or a sliver of overlap) and the direction of its z is rounding noise: let EPA
+        # find the face there
+        contact = contact | (safe_norm(z) <= _TOUCH * scale)
+        s_pts, s_mask = _complete_face(sm, s_pts, s_mask, _unit(z), safe_norm(z), scale)
     ex = jnp.array([0.0, 0.0, 1.0], dt)
 
     if cfg["flat"]:

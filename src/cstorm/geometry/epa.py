@@ -14,7 +14,10 @@ Returns ``(pts, lam, nu, dist)``: the nearest face's three `SupportPoint` s (fie
 normal ``nu`` (3,) and its distance ``dist >= 0`` from the origin. The penetration
 depth is ``dist``, the signed distance ``-dist`` and cstorm's normal ``n = -nu``.
 Buffers hold ``5 + max_iter`` vertices and twice as many faces; the horizon is found
-with a dense directed-edge table (``(V, V)``), no adjacency lists.
+with a dense directed-edge table (``(V, V)``), no adjacency lists. Faces of area below
+``1e-14 scale^2`` are never chosen (their normals are rounding noise: a bipyramid apex
+on the plane of GJK's triangle when the shapes touch); among faces at the same distance
+(coplanar pieces of one face of M) the one that holds the origin's projection is.
 """
 
 from __future__ import annotations
@@ -89,7 +92,7 @@ def _face_geometry(Vw, F, fvalid, scale):
     Vi, Vj, Vk = Vw[F[:, 0]], Vw[F[:, 1]], Vw[F[:, 2]]
     nrm = jnp.cross(Vj - Vi, Vk - Vi)
     area = safe_norm(nrm)
-    good = fvalid & (area > 1e-24 * scale * scale)
+    good = fvalid & (area > 1e-14 * scale * scale)  # (near-)degenerate faces have no reliable normal
     nu = nrm / jnp.where(good, area, 1.0)[:, None]
     dist = jnp.sum(nu * Vi, axis=-1)
     return nu, dist, good
@@ -146,17 +149,19 @@ def epa(support_m, simp: Simplex, max_iter: int, scale, tol=1e-11, _debug=False)
     if _debug:
         return V, F, fvalid, nv
     nu, dist, good = _face_geometry(V.w, F, fvalid, scale)
-    f = jnp.argmin(jnp.where(good, dist, jnp.inf))
-    idx = F[f]
-    pts = SupportPoint(*[x[idx] for x in V])
-    # barycentric weights of the origin's projection dist * nu on the face
-    W = pts.w
-    e1, e2 = W[1] - W[0], W[2] - W[0]
-    a11, a12, a22 = e1 @ e1, e1 @ e2, e2 @ e2
-    b1, b2 = -(e1 @ W[0]), -(e2 @ W[0])
+    # barycentric weights of the origin's projection dist * nu on every face
+    W = V.w[F]  # (NF, 3, 3)
+    e1, e2 = W[:, 1] - W[:, 0], W[:, 2] - W[:, 0]
+    a11, a12, a22 = jnp.sum(e1 * e1, -1), jnp.sum(e1 * e2, -1), jnp.sum(e2 * e2, -1)
+    b1, b2 = -jnp.sum(e1 * W[:, 0], -1), -jnp.sum(e2 * W[:, 0], -1)
     det = a11 * a22 - a12 * a12
     sdet = jnp.where(det > 0.0, det, 1.0)
     l1 = (b1 * a22 - b2 * a12) / sdet
     l2 = (a11 * b2 - a12 * b1) / sdet
-    lam = jnp.stack([1.0 - l1 - l2, l1, l2])
-    return pts, lam, nu[f], dist[f], it
+    lam = jnp.stack([1.0 - l1 - l2, l1, l2], axis=-1)
+    # the nearest face; among coplanar faces at the same distance (touching shapes, where
+    # the origin lies on a face of M that EPA triangulated) the one holding the projection
+    inside = jnp.all(lam >= -1e-9, axis=-1)
+    f = jnp.argmin(jnp.where(good, dist + jnp.where(inside, 0.0, 1e-12 * scale), jnp.inf))
+    pts = SupportPoint(*[x[F[f]] for x in V])
+    return pts, lam[f], nu[f], dist[f], it

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# cstorm's main job on a fresh machine: make a virtual environment, install cstorm, run
-# the demo and write its pictures to ./cstorm-out/demo (or the directory given as $1).
+# cstorm's main job on a fresh machine: make a virtual environment, install cstorm, solve
+# the demo motion (the Luxo lamp's hop) and write its files to ./cstorm-out/demo (or $1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}

@@ -64,32 +64,23 @@ def _model_json(model):
 
 
 def cmd_demo(args):
-    """Foundation demo: describe the tumbler, then simulate a double pendulum released
-    from horizontal with RK4 + ABA, and write a plot, a strobe picture and a CSV."""
-    import numpy as np
-
+    """The main demo: describe the demo robot, then solve its shipped motion problem
+    (the Luxo lamp's hop, `cstorm.viz.demo.DEMO_PROBLEM`) exactly as ``cstorm solve``
+    does and write its outputs (summary.json, solution.npz, trajectory.csv, plots,
+    animation) to ``--out``. Exit codes as for ``cstorm solve``."""
     from .viz import demo as viz_demo
 
     out = args.out
     os.makedirs(out, exist_ok=True)
-    from .model.info import describe
-    import cstorm as cs
-
-    info = describe(cs.robots.tumbler())
-    with open(os.path.join(out, "tumbler_info.txt"), "w") as f:
-        f.write(info + "\n")
+    problem, _ = resolve_problem(viz_demo.DEMO_PROBLEM)
+    info = viz_demo.write_model_info(out, problem.model)
     if not args.json:
-        print(info, file=sys.stderr)
-    summary = viz_demo.pendulum_demo(out, t_final=args.t_final)
-    summary["files"] = sorted(os.listdir(out))
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"\ndouble pendulum, {summary['steps']} RK4 steps of {summary['dt']} s: relative energy drift "
-              f"{summary['energy_drift_rel']:.2e}; compile {summary['compile_time_s']:.1f} s, run "
-              f"{summary['run_time_s']:.3f} s", file=sys.stderr)
-        print(f"wrote {', '.join(summary['files'])} to {out}", file=sys.stderr)
-    return 0
+        print(info + "\n", file=sys.stderr)
+    solve_args = argparse.Namespace(
+        problem=viz_demo.DEMO_PROBLEM, out=out, segment=None, method=None, max_iter=None, tol=None,
+        checkpoint=False, resume=False, set=[], guess=args.guess, no_animation=args.no_animation,
+        no_fidelity=args.no_fidelity, json=args.json, argv=args.argv)
+    return cmd_solve(solve_args)
 
 
 def _parse_set(items):
@@ -285,10 +276,17 @@ def build_parser():
     pi.add_argument("--floating-base", choices=["free", "planar"], default=None)
     pi.add_argument("--json", action="store_true")
     pi.set_defaults(fn=cmd_info)
-    pd = sub.add_parser("demo", help="run the demo motion and write pictures")
-    pd.add_argument("--out", default=os.path.join("cstorm-out", "demo"))
-    pd.add_argument("--t-final", type=float, default=3.0)
-    pd.add_argument("--json", action="store_true")
+    pd = sub.add_parser("demo", help="solve the demo motion (the Luxo lamp's hop) and write its files",
+                        description="The main demo: write the Luxo lamp's model description (luxo_info.txt), "
+                                    "solve its hop (as `cstorm solve luxo`) and write summary.json, "
+                                    "solution.npz, trajectory.csv, PNG plots and animation.gif to --out.")
+    pd.add_argument("--out", default=os.path.join("cstorm-out", "demo"), help="output directory "
+                                                                               "(default ./cstorm-out/demo)")
+    pd.add_argument("--guess", action="store_true", help="do not solve: write the outputs of the initial guess "
+                                                          "(exit code 1, as for cstorm solve --guess)")
+    pd.add_argument("--no-animation", action="store_true", help="skip the animation")
+    pd.add_argument("--no-fidelity", action="store_true", help="skip the re-simulation fidelity check")
+    pd.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")
     pd.set_defaults(fn=cmd_demo)
     ps = sub.add_parser("solve", help="solve a shipped motion problem or a TOML problem file; write results",
                         description="Solve PROBLEM (a shipped example name or a .toml problem file) and write "

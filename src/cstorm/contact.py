@@ -675,7 +675,9 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
             bidx += [model.geom_bodies[g]] * m
         Pb, rad, Nw, off = (jnp.concatenate(a) for a in (Pb, rad, Nw, off))
         bidx = np.asarray(bidx)
-        x = jnp.einsum("kij,kj->ki", Rw[bidx], Pb) + pw[bidx]
+        # R_b c as a sum over R's columns: gathers of (k, 3), never a (k, 3, 3) array,
+        # so a rollout's stage loop keeps every buffer small (see `cstorm.simulate`)
+        x = Rw[bidx, :, 0] * Pb[:, 0:1] + Rw[bidx, :, 1] * Pb[:, 1:2] + Rw[bidx, :, 2] * Pb[:, 2:3] + pw[bidx]
         pr = x - rad[:, None] * Nw
         d = jnp.sum(Nw * x, axis=1) - rad - off
         ds.append(d), p_rob.append(pr), p_obs.append(pr - d[:, None] * Nw), ns.append(Nw)

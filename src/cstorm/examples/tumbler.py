@@ -56,6 +56,7 @@ start to its end value (segment 2: joints held), which is the optimizer's defaul
 from __future__ import annotations
 
 import numpy as np
+import jax.numpy as jnp
 
 from .. import robots
 from ..contact import ContactParams
@@ -118,6 +119,78 @@ def _env_contact():
     return Environment([ground()]), ContactParams(**CONTACT)
 
 
+class ScaledTorqueLimits(K.Constraint):
+    """``factor - |tau_i| / limit_i >= 0`` for the active joints' motors, sampled on the
+    constraint grid (the model's effort limits): O(1) values like the other constraints';
+    ``factor`` (a problem parameter's name, or a number) lets a solve plan start with the
+    limits relaxed and tighten them to 1 (SLSQP steps far when many raw N m limits are far
+    from satisfied)."""
+
+    kind = "ineq"
+
+    def __init__(self, factor="tau_factor", stage=0, name="torque limits"):
+        self.factor, self.stage, self.name = factor, int(stage), name
+
+    def check(self, problem):
+        self._idx = np.array(problem.layout.va_idx, int)
+
+    def values(self, ctx, end, samples):
+        r = samples["tau"][:, self._idx] / ctx.model.effort_limit[self._idx]
+        f = C.resolve(self.factor, ctx.params)
+        return jnp.concatenate([(f - r).ravel(), (f + r).ravel()])
+
+    def describe(self):
+        return {"type": "ScaledTorqueLimits", "factor": self.factor, "stage": self.stage}
+
+
+def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
+    """Terminal base pitch within ``pitch_tol`` (rad; a number or a parameter's name) of
+    the ``pitch`` parameter, the base at rest within ``vtol`` (m/s, rad/s) and the torque
+    limits relaxed by ``tau_factor``: inequalities of level ``stage`` whose tolerances a
+    solve plan tightens. ``pitch_eq``: the terminal pitch is instead an equality of level
+    0 (for a continuation on ``pitch``)."""
+    pitch = (K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch") if pitch_eq else
+             K.TerminalState("root_pitch", q="pitch", kind="ineq", tol=pitch_tol, stage=stage, name="pitch"))
+    return [pitch,
+            K.TerminalState("root_pitch", v=0.0, kind="ineq", tol="vtol", stage=stage, name="pitch rate"),
+            K.TerminalState("root_x", v=0.0, kind="ineq", tol="vtol", stage=stage, name="x rate"),
+            K.TerminalState("root_z", v=0.0, kind="ineq", tol="vtol", stage=stage, name="z rate"),
+            ScaledTorqueLimits(stage=stage)]
+
+
+#: the default initial guess of the handstand: (fraction of T, (hip, shoulder) rad),
+#: smoothstep ramps between (see `_hopping.keyframe_guess`): raise the arms overhead
+#: while the hip opens slightly (legs back, 0.16 rad at mid-motion) to counterbalance,
+#: then stand straight. Rolled out, the robot stays on its feet (pitch -0.04 rad at T,
+#: tipping back at 0.3 rad/s): a "stand still" guess, from which the terminal pitch
+#: responds smoothly to the controls (the feasibility study's recipe). Guesses that end
+#: lying on the floor (a pike onto the hands that does not get the legs up, or one that
+#: tips over the hands onto the back) give the terminal constraints no gradient: SLSQP
+#: stalls there (see the module docstring, Status).
+HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.5, (0.16, 0.0)), (1.0, (0.0, 0.0)))
+#: the handstand's continuation on the terminal pitch (equality; level 0)
+HANDSTAND_PITCH_RAMP = (0.15, 0.3, 0.6, 1.0, 1.4, 1.8, 2.2, 2.6, 2.9, np.pi)
+#: the roll's guess: tip the body forward with the shoulder (arms pinned on the floor, the
+#: torso leans past the hands), pike while falling, land on the back
+ROLL_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.3, (0.0, -0.6)), (0.7, (-1.0, -0.3)), (1.0, (-1.5, 0.0)))
+#: the last segment's guess: lower the arms (forward and down) while the hip opens
+#: slightly (legs back, 0.1 rad at mid-motion) to counterbalance; rolled out it stays on
+#: its feet (pitch within 0.06 rad of upright, 0.08 rad/s at T; without the hip motion the
+#: arm swing tips it forward onto its face)
+START_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.5, (0.1, 1.5)), (1.0, (0.0, ARMS_DOWN)))
+#: solve plan of the at-rest segments: after the pitch ramp (level 0), the terminal
+#: constraints (level 1) along (pitch tolerance rad, velocity tolerance m/s and rad/s,
+#: torque-limit factor)
+REST_RAMP = ((0.3, 1.0, 4.0), (0.1, 0.3, 2.5), (0.03, 0.1, 1.6), (0.01, 0.03, 1.2), (3e-3, 0.01, 1.0),
+             (1e-3, 1e-3, 1.0), (2e-4, 1e-4, 1.0))
+def _plan(pitch_ramp=(), rest_ramp=REST_RAMP):
+    """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, then the
+    ``rest_ramp`` (level 1) at the last pitch."""
+    final = pitch_ramp[-1] if len(pitch_ramp) else 2 * np.pi
+    return ([dict(params=dict(pitch=p), level=0) for p in pitch_ramp] +
+            [dict(params=dict(pitch=final, ptol=pt, vtol=v, tau_factor=f), level=1) for pt, v, f in rest_ramp])
+
+
 def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: float | None = None, q0=None,
                     v0=None, model=None):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
@@ -129,20 +202,19 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
       q0, v0: start state (default: the segment's nominal start posture at rest; in a
         sequence the previous segment's end state replaces it).
     """
+    from ._hopping import keyframe_guess
+
     model = robots.tumbler(feet=True) if model is None else model
     env, contact = _env_contact()
     common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=40)
-    torque = K.TorqueLimits(stage=1, name="torque limits")
+    rest_params = {"ptol": 2e-4, "vtol": 1e-4, "tau_factor": 1.0}
     if name == "handstand":
         T = 2.0 if t_final is None else t_final
         q0 = start_q(model) if q0 is None else q0
-        cons = [K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch"),
-                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
-                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
-                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
-                          rest_end=True, constraints=cons, params={"pitch": np.pi}, **common)
-        p.solve_options["continuation"] = {"pitch": [0.3, 0.6, 1.0, 1.4, 1.8, 2.2, 2.6, 2.9, np.pi]}
+                          rest_end=True, constraints=_rest_terms(pitch_eq=True), params={"pitch": np.pi, **rest_params},
+                          initial_guess=keyframe_guess(HANDSTAND_KEYFRAMES, T, ("hip", "shoulder")), **common)
+        p.solve_options["schedule"] = _plan(HANDSTAND_PITCH_RAMP)
         # the ramp's stages only warm-start the next one: a loose tolerance is enough
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60)
     elif name == "roll":
@@ -152,29 +224,29 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
                                      name="pitch past lying"),
                 K.TerminalConstraint(lambda q, v, prm: 0.1 - q[1], kind="ineq", stage=0, name="torso on ground"),
                 K.TerminalConstraint(lambda q, v, prm: v[2] - 1.0, kind="ineq", stage=1, name="still rolling"),
-                torque]
+                ScaledTorqueLimits(stage=1)]
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, constraints=cons,
-                          params={"pitch": 1.5 * np.pi - 0.2}, **common)
+                          params={"pitch": 1.5 * np.pi - 0.2, "tau_factor": 1.0},
+                          initial_guess=keyframe_guess(ROLL_KEYFRAMES, T, ("hip", "shoulder")), **common)
+        p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=40, first_step=0.1, trust_region=0.5)
     elif name == "standing":
         T = 2.0 if t_final is None else t_final
         if q0 is None:
             raise ValueError("tumbler_segment('standing') needs q0/v0 (the end of the roll)")
-        cons = [K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch"),
-                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
-                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
-                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
-                          rest_end=True, constraints=cons, params={"pitch": 2 * np.pi}, **common)
+                          rest_end=True, constraints=_rest_terms(pitch_eq=True),
+                          params={"pitch": 2 * np.pi, **rest_params}, **common)
+        p.solve_options["schedule"] = _plan((2 * np.pi,))
+        p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60)
     elif name == "start":
-        T = 1.5 if t_final is None else t_final
+        T = 2.0 if t_final is None else t_final
         q0 = standing_q(model) if q0 is None else q0
-        cons = [K.TerminalState("root_pitch", q="pitch", kind="ineq", tol=0.05, stage=0, name="pitch"),
-                K.TerminalState("root_pitch", v=0.0, stage=1, name="pitch rate"),
-                K.TerminalState("root_x", v=0.0, stage=1, name="x rate"),
-                K.TerminalState("root_z", v=0.0, stage=1, name="z rate"), torque]
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0,
-                          q_final_active={"hip": 0.0, "shoulder": ARMS_DOWN}, rest_end=True, constraints=cons,
-                          params={"pitch": 2 * np.pi}, **common)
+                          q_final_active={"hip": 0.0, "shoulder": ARMS_DOWN}, rest_end=True,
+                          constraints=_rest_terms(pitch_tol=0.05), params={"pitch": 2 * np.pi, **rest_params},
+                          initial_guess=keyframe_guess(START_KEYFRAMES, T, ("hip", "shoulder")), **common)
+        p.solve_options["schedule"] = _plan()
+        p.solve_options.update(intermediate_tol=1e-6, intermediate_max_iter=25, first_step=0.05, trust_region=0.05)
     else:
         raise ValueError(f"unknown tumbler segment {name!r}; segments are {SEGMENTS}")
     p.success_criteria = _criteria(name)

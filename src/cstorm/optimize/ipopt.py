@@ -131,7 +131,7 @@ def run_ipopt(ca, ev, x0, tracker, stage, params, max_iter, tol, options):
     lbg = np.concatenate([np.zeros(ne), np.zeros(ni)])
     ubg = np.concatenate([np.zeros(ne), np.full(ni, np.inf)])
     from .solve import variable_bounds, _clip_into
-    lbx, ubx = variable_bounds(ev.p)
+    lbx, ubx = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     args = dict(x0=_clip_into(x0, lbx, ubx), lbx=lbx, ubx=ubx)
     if m:
         args.update(lbg=lbg, ubg=ubg)

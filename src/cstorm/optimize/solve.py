@@ -54,6 +54,7 @@ class _Evaluator:
         self.p, self.data = problem, data
         self.me, self.mi = mask_eq, mask_in
         self.fscale = 1.0  # the solver sees fscale * f (reported costs are unscaled)
+        self.bounds = None  # (lb, ub) of the current stage (None: `variable_bounds`)
         self.fn = problem.compiled("fun_jac")
         self.x = None
         self.nev = 0
@@ -267,6 +268,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
         ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
+        ev.bounds = _stage_bounds(problem, x)
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
             # intermediate stages only warm-start the next one: the problem may loosen them
@@ -393,6 +395,20 @@ def variable_bounds(problem):
     return lb, ub
 
 
+def _stage_bounds(problem, x):
+    """The variable bounds of one stage that starts at ``x``: `variable_bounds`, and with
+    ``problem.solve_options["trust_region"] = r`` (same units as ``x``) also within ``r``
+    of ``x`` (a box trust region per stage that moves with the solve: SLSQP's linearized
+    constraints otherwise throw a warm start radians away; a continuation plan can still
+    travel far, ``r`` per stage). ``x`` is first moved into the bounds."""
+    lb, ub = variable_bounds(problem)
+    r = problem.solve_options.get("trust_region")
+    if r is None:
+        return lb, ub
+    xc = _clip_into(np.asarray(x, float), lb, ub)
+    return np.maximum(lb, xc - float(r)), np.minimum(ub, xc + float(r))
+
+
 def _clip_into(x, lb, ub):
     """x moved into the box (an initial guess outside it would be rejected by SLSQP)."""
     return np.minimum(np.maximum(x, lb), ub)
@@ -416,7 +432,7 @@ def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
 
     opts = dict(maxiter=int(max_iter), ftol=float(tol))
     opts.update(options or {})
-    lb, ub = variable_bounds(ev.p)
+    lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     bounds = Bounds(lb, ub) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
     res = minimize(fun, _clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
                    callback=cb, bounds=bounds)

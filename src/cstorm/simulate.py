@@ -328,8 +328,8 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
         t = x["k"] * h
         if integrator == "rk4":
             # the four RK4/RKMK4 stages as a scan, so the dynamics is traced once. The
-            # trajectory records stage 0 (the grid point): its outputs ride in the carry
-            # (selected at i = 0) rather than as stacked scan outputs, which keeps every
+            # trajectory records stage 0 (the grid point): a and tau as stacked scan outputs
+            # (small), the contact data in the carry (selected at i = 0), which keeps every
             # buffer of the stage loop small (see the module docstring, "Performance")
             P = jnp.stack([x["qa0"], x["qam"], x["qam"], x["qa1"]])
             V = jnp.stack([x["va0"], x["vam"], x["vam"], x["va1"]])
@@ -347,21 +347,22 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
                 qi, vi, ai, taui, ci, Li = stage(qi, vi, qa_, va_, aa_, t + c * h)
                 Ki = _dexpinv(model, layout, th, vi[ivp])
                 Wi = ai[ivp]
-                if record:
-                    rec = jax.tree_util.tree_map(lambda new, old: jnp.where(i0, new, old), (ai, taui, ci), rec)
-                return (Ki, Wi, sK + b * Ki, sW + b * Wi, sL + b * Li, rec), None
+                if record and ci is not None:
+                    rec = jax.tree_util.tree_map(lambda new, old: jnp.where(i0, new, old), ci, rec)
+                return (Ki, Wi, sK + b * Ki, sW + b * Wi, sL + b * Li, rec), (ai, taui) if record else None
 
             z0 = jnp.zeros(nvp, dtype)
             rec0 = None
             if record:
-                shapes = jax.eval_shape(lambda: stage(q, v, x["qa0"], x["va0"], x["aa0"], t)[2:5])
+                shapes = jax.eval_shape(lambda: stage(q, v, x["qa0"], x["va0"], x["aa0"], t)[4])
                 rec0 = jax.tree_util.tree_map(lambda s_: jnp.zeros(s_.shape, s_.dtype), shapes)
             sc0 = (z0, z0, z0, z0, jnp.zeros((), dtype), rec0)
-            (_, _, sK, sW, sL, rec), _ = jax.lax.scan(rk_stage, sc0, (cs_, bs_, first, P, V, A))
+            (_, _, sK, sW, sL, rec), ys = jax.lax.scan(rk_stage, sc0, (cs_, bs_, first, P, V, A))
             # stage 0's state: the grid point with the active entries from the paths (as
             # `_stage` sets them; its passive increment is exactly zero)
             q1_, v1_ = _with_active(layout, q, v, x["qa0"], x["va0"])
-            a1, tau1, c1 = rec if record else (None, None, None)
+            a1, tau1 = (ys[0][0], ys[1][0]) if record else (None, None)
+            c1 = rec
             qn = _passive_exp(model, layout, q1_, h * sK)
             vn = v1_.at[ivp].add(h * sW)
             Jn = J + h * sL

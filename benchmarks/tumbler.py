@@ -23,11 +23,24 @@ Reference points (DESIGN.md): the throwaway feasibility study's hand-written rol
 the same robot took 12 us per RK4 step. Results on this shared 2-core machine carry
 +-30% noise or more; the load average is printed with each run.
 
-Latest (2026-11-23; before -> after the commit that keeps the RK4 stage loop's buffers
-small, measured in one process against a copy of the previous code): ``fun`` 84.6 ->
-55.4 ms per evaluation, 169 -> 111 us per step (load 2.4); at load 8-10 122-131 -> 75-77
-ms. ``fun_jac`` 515 -> 520 ms (load 7-8; unchanged). The stage peer: 15.8 us per stage,
-so a step costs ~1.8x its four stages: the rest is the rollout's own bookkeeping.
+Latest (2026-11-23; the code before -> after the commits that keep the RK4 stage loop's
+buffers small (ded9ae7, fcb3833), measured in one process against a copy of the previous
+code, best of 5, identical values): ``fun`` 79.4 -> 43.7 ms per evaluation (159 -> 87 us
+per step) at load 4-5, 108.7 -> 56.7 ms at load 5, 84.5 -> 36.5 ms (169 -> 73 us per
+step) at load 5-6 (ded9ae7 alone); ``fun_jac`` 381 -> 356 ms (763 -> 712 us per step, load 4-5).
+Compile: ``fun`` 12-14 s, ``fun_jac`` 46-56 s on both. The stage peer: ~16 us per stage
+(load 2), so a step costs ~1.5-1.8x its four stages: the rest is the rollout's own
+bookkeeping (the step loop records the trajectory into buffers over 512 bytes, so its
+~40 kernels run through XLA's dataflow executor).
+
+Tried without success (2026-11-23): re-evaluating the contact forces or the hybrid
+dynamics as a graph of scalar operations (every array entry its own value, so XLA fuses
+across what are now separate kernels). Contact alone in a scan dropped from 43 kernels /
+8-16 us to 3 kernels / 2.2 us per evaluation, but the hybrid dynamics stayed at ~116
+kernels (XLA stops fusing scalar values with 30+ users) and, inside the rollout, XLA
+duplicated the scalar contact graph into the dynamics' kernels: 5-100x slower overall.
+An ``optimization_barrier`` between contact and dynamics did not help either once the
+stage loop ran sequentially.
 """
 
 from __future__ import annotations

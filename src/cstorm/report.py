@@ -248,10 +248,13 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
     sols = []
     q0 = v0 = None
     for p, xk in zip(segs, xs):
+        guess = xk is None
         xk = np.asarray(p.x0 if xk is None else xk, float)
         if xk.shape != (p.n_vars,):
             raise InputError(f"solution_at: x for {p.name!r} must have shape ({p.n_vars},), got {xk.shape}")
         data = p.data(q0=q0, v0=v0)
+        if guess:  # the guess as `solve` starts from it (multiple shooting: nodes on its rollout)
+            xk = p.shoot_nodes(xk, data)
         tr = jax.tree_util.tree_map(np.asarray, p.compiled("trajectory")(jnp.asarray(xk), data))
         traj = dict(t=np.asarray(p.t), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"], ctrl=tr["ctrl"])
         if tr.get("contact") is not None:

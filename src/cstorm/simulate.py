@@ -251,7 +251,7 @@ def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params, deri
 def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int, *, integrator: str = "rk4",
             contact_fn: Callable | None = None, cost_fn: Callable | None = None, params: Any = None,
             segment: int | None = None, q_bound: float = 1e4, v_bound: float = 1e4, record: bool = True,
-            n_valid=None, derivatives: str = "analytic"):
+            n_valid=None, derivatives: str = "analytic", t0=0.0):
     """Integrate the passive state with prescribed active paths (pure JAX; jit/grad/vmap).
 
     Args:
@@ -278,6 +278,8 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
       derivatives: ``"analytic"`` (default: the hybrid dynamics' JAX derivative is the
         analytic recursive one, model-parameter tangents by autodiff) or ``"autodiff"``
         (differentiate through the recursive algorithm). Values are identical.
+      t0: time (s) of the first grid point, as ``cost_fn`` sees it (may be traced: the
+        intervals of a multiple-shooting problem are one vmapped rollout).
     Returns:
       dict with ``J`` (running-cost integral; inf if diverged), ``qT``, ``vT`` (final
       state, active entries from the paths), ``diverged`` (bool), ``div_step`` (int, first
@@ -325,7 +327,7 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
 
     def step(carry, x):
         q, v, J, bad, bstep, bdof, breason = carry
-        t = x["k"] * h
+        t = t0 + x["k"] * h
         if integrator == "rk4":
             # the four RK4/RKMK4 stages as a scan, so the dynamics is traced once. The
             # trajectory records stage 0 (the grid point): a and tau as stacked scan outputs

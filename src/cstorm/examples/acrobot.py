@@ -33,7 +33,7 @@ def acrobot_model(length: float = 1.0, mass: float = 1.0, gravity: float = 9.81)
 
 
 def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator: str = "rk4",
-            continuation: bool = True):
+            continuation: bool = True, shooting: int = 1):
     """Acrobot swing-up: from hanging at rest, ``q = (0, 0)``, to upright at rest,
     ``q = (pi, 0)``, in ``t_final`` s, moving only the elbow; minimize the integral of
     ``1/2 tau_elbow^2``.
@@ -45,6 +45,8 @@ def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator
     problem parameter ``"target"``), warm-starting each stage: straight at ``pi`` SLSQP
     wanders (reaching the unstable upright equilibrium at rest is badly conditioned for
     single shooting), and the last step of the ramp needs the finer 0.875 stop.
+
+    ``shooting``: shooting intervals (see `cstorm.optimize.problem`; 1: single shooting).
 
     Returns a `MotionProblem`; ``cs.solve(problem)`` solves it (the problem's
     ``solve_options`` hold the continuation schedule).
@@ -64,7 +66,7 @@ def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator
         costs=[costs.TorqueSquared(weight=1.0)],
         constraints=[constraints.TerminalState("shoulder", q="target", v=0.0)],
         params={"target": np.pi}, integrator=integrator, name="acrobot",
-        initial_guess={"elbow": (t, guess)},
+        initial_guess={"elbow": (t, guess)}, shooting=shooting,
     )
     if continuation:
         prob.solve_options["continuation"] = {"target": [np.pi * s for s in (0.25, 0.5, 0.75, 0.875, 1.0)]}

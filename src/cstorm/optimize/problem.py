@@ -1,6 +1,6 @@
 """One motion segment as a static parameter optimization (DESIGN.md, "The method", item
 5; the draft's "Generating Motions"): single shooting with quintic B-spline paths for
-the active joints.
+the active joints, or multiple shooting of the passive state (``shooting=K``).
 
 Decision vector ``x``: the free control points of the active joints' splines (those not
 fixed by the boundary conditions), joint by joint in model order (``problem.active``):
@@ -19,7 +19,26 @@ so it is one consistent state; at ``x0`` the offsets are zero (the nominal ``q0`
 
 Objective ``f(x) = sum of terminal costs + integral of running costs`` (see `costs`);
 equality constraints ``c_eq(x) = 0``, inequalities ``c_in(x) >= 0`` (see
-`constraints`). Everything the compiled functions read that is a number — the model's
+`constraints`).
+
+Multiple shooting (``shooting=K > 1``): the grid's ``N`` steps split into ``K`` equal
+intervals. The active joints still follow their splines over the whole horizon; the
+passive state at the start of intervals ``1..K-1`` (the *nodes*) becomes decision
+variables, appended last: ``x = [..., dq_1, w_1, ..., dq_{K-1}, w_{K-1}]`` with ``dq_i``
+(n_vp,) the passive tangent offset of node ``i`` from the start configuration
+(``q_i = data["q0"] (+) dq_i`` on the manifold; plain addition for 1-DoF joints) and
+``w_i`` (n_vp,) its passive velocity, in the order of ``layout.vp_idx``. The ``K``
+intervals are one vmapped rollout; continuity is an equality constraint of level 0 (label
+``"shooting continuity"``, appended last to ``c_eq``): for each node, the tangent from
+the node to the previous interval's end position and the velocity difference, ``2 n_vp``
+values (rad or m, rad/s or m/s). The recorded trajectory stitches the intervals (node
+``i``'s grid point is interval ``i-1``'s end); at a solution the defects vanish and it is
+one continuous motion. Why: the terminal state of a balancing or falling robot is
+exponentially sensitive to early controls; splitting the horizon bounds that growth
+per interval, so the linearizations SLSQP builds on stay good. `shoot_nodes` fills the
+node variables from a single-shooting rollout (what `solve` does with the default guess).
+
+Everything the compiled functions read that is a number — the model's
 arrays, ``q0``, ``v0``, the end values and the problem parameters — is a dynamic
 argument (``problem.data(...)``), so continuation, sequences and design studies reuse
 one compiled function.
@@ -122,6 +141,9 @@ class MotionProblem:
         ``rest_start=True`` an active joint's velocity cannot be free. `solve` takes no
         variable bounds: bound the start state, where wanted, by a constraint on the
         trajectory's first sample (``samples["q"][0]`` in a `constraints.Constraint`).
+      shooting: number of shooting intervals ``K`` (default 1: single shooting); ``N`` must
+        be a multiple of ``K`` and every joint wholly active or wholly passive (see the
+        module docstring).
       success_criteria: optional problem-specific success criteria, checked after a
         solve by `cstorm.report.evaluate_criteria` (and reported in ``summary.json`` by
         ``cstorm solve``): a callable ``(solution) -> {name: {"value", "tol", "ok"}}`` or
@@ -137,7 +159,7 @@ class MotionProblem:
                  q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
                  constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
                  jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None,
-                 free_initial=None):
+                 free_initial=None, shooting=1):
         require_x64("MotionProblem")
         self.model = model
         self.name = str(name)
@@ -173,6 +195,21 @@ class MotionProblem:
         if self.rest_start and np.any(self.v0[list(self.layout.va_idx)] != 0):
             raise ProblemError("MotionProblem: rest_start=True needs zero initial velocity of the active joints")
         self.free_initial = self._parse_free_initial(free_initial)
+        self.shooting = int(shooting)
+        if self.shooting < 1 or self.shooting != shooting:
+            raise ProblemError(f"MotionProblem: shooting must be a positive integer, got {shooting!r}")
+        if self.n_steps % self.shooting:
+            raise ProblemError(f"MotionProblem: shooting={self.shooting} must divide the number of steps "
+                               f"N = {self.n_steps} (t_final / dt)")
+        if self.shooting > 1:
+            vp = set(self.layout.vp_idx)
+            for i, jn in enumerate(model.joint_names):
+                vs = set(range(model.v_starts[i], model.v_starts[i] + model.joints[i].nv))
+                if vs & vp and not vs <= vp:
+                    raise ProblemError(f"MotionProblem: shooting={self.shooting} needs every joint wholly active or "
+                                       f"wholly passive; joint {jn!r} is partly active")
+        self.n_vp = len(self.layout.vp_idx)
+        self.n_node_vars = 2 * self.n_vp * (self.shooting - 1)
         self.params = {k: np.asarray(v, dtype=float) for k, v in (params or {}).items()}
         self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
         self.constraints = list(constraints or [])
@@ -207,7 +244,7 @@ class MotionProblem:
             raise ProblemError(f"MotionProblem: n_ctrl={n_ctrl} leaves no free control points after the boundary "
                                "conditions; increase n_ctrl")
         self.n_spline_vars = self.n_free * self.layout.n_active
-        self.n_vars = self.n_spline_vars + len(self._fi_dq) + len(self._fi_dv)
+        self.n_vars = self.n_spline_vars + len(self._fi_dq) + len(self._fi_dv) + self.n_node_vars
         self._basis = {k: jnp.asarray(v) for k, v in active_paths(self.spline, self.n_steps, integrator).items()}
         self.solve_options = {}
         self._compiled = {}
@@ -262,7 +299,7 @@ class MotionProblem:
         m = self.model
         n0 = self.n_spline_vars
         dq = x[n0: n0 + len(self._fi_dq)]
-        dv = x[n0 + len(self._fi_dq):]
+        dv = x[n0 + len(self._fi_dq): n0 + len(self._fi_dq) + len(self._fi_dv)]
         k = 0
         for i, has_q, _ in self._fi_joints:
             if has_q:
@@ -352,11 +389,73 @@ class MotionProblem:
         if self._contact_fn is not None:
             cfn = lambda q, v: self._contact_fn(model, data.get("env"), data.get("contact"), q, v)
         q0, v0 = self.initial_state(x, data)
-        res = rollout(model, self.layout, q0, v0, paths, self.dt, self.n_steps,
-                      integrator=self.integrator, contact_fn=cfn, cost_fn=cost_fn if running else None,
-                      params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,
-                      record=record)
-        return res, ctx
+        kw = dict(integrator=self.integrator, contact_fn=cfn, cost_fn=cost_fn if running else None,
+                  params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,
+                  record=record)
+        if self.shooting == 1:
+            return rollout(model, self.layout, q0, v0, paths, self.dt, self.n_steps, **kw), ctx
+        return self._multiple_shooting(x, data, q0, v0, paths, kw), ctx
+
+    def _node_states(self, x, data):
+        """Node configurations ``(K-1, nq)`` and velocities ``(K-1, nv)`` at ``x`` (the
+        active entries are placeholders: the rollout takes them from the paths)."""
+        from ..dynamics.configuration import integrate
+        model, vp = data["model"], np.array(self.layout.vp_idx, int)
+        z = jnp.reshape(x[self.n_vars - self.n_node_vars:], (self.shooting - 1, 2, self.n_vp))
+        dq = jnp.zeros((self.shooting - 1, model.nv), x.dtype).at[:, vp].set(z[:, 0])
+        qs = jax.vmap(lambda d: integrate(model, data["q0"], d))(dq)
+        vs = jnp.broadcast_to(data["v0"], (self.shooting - 1, model.nv)).at[:, vp].set(z[:, 1])
+        return qs, vs
+
+    def _multiple_shooting(self, x, data, q0, v0, paths, kw):
+        """The ``K`` intervals as one vmapped rollout, stitched (see the module docstring);
+        adds ``defects`` (2 n_vp (K-1),) to the result."""
+        from ..dynamics.configuration import difference
+        model, K = data["model"], self.shooting
+        n = self.n_steps // K
+        qs, vs = self._node_states(x, data)
+        Q0, V0 = jnp.concatenate([q0[None], qs]), jnp.concatenate([v0[None], vs])
+        grid = np.arange(K)[:, None] * n + np.arange(n + 1)[None, :]  # (K, n+1), shared ends
+        pk = {k: (y[grid] if k in ("qa", "va", "aa") else y[grid[:, :n]]) for k, y in paths.items()}
+        t0 = jnp.asarray(np.arange(K) * n * self.dt)
+        res = jax.vmap(lambda a, b, c, d: rollout(model, self.layout, a, b, c, self.dt, n, t0=d, **kw))(Q0, V0, pk, t0)
+        vp = np.array(self.layout.vp_idx, int)
+        dq = jax.vmap(lambda qn, qe: difference(model, qn, qe)[vp])(qs, res["qT"][:-1])
+        dv = res["vT"][:-1, vp] - vs[:, vp]
+        bad = res["diverged"]
+        first = jnp.argmax(bad)
+        out = dict(J=jnp.sum(res["J"]), diverged=jnp.any(bad),
+                   div_step=jnp.where(jnp.any(bad), first * n + res["div_step"][first], -1),
+                   div_dof=jnp.where(jnp.any(bad), res["div_dof"][first], -1),
+                   div_reason=jnp.where(jnp.any(bad), res["div_reason"][first], 0),
+                   qT=res["qT"][-1], vT=res["vT"][-1],
+                   defects=jnp.concatenate([dq, dv], axis=1).ravel())
+        if kw["record"]:
+            stitch = lambda y: jnp.concatenate([y[0], jnp.reshape(y[1:, 1:], (-1,) + y.shape[2:])])
+            tr = res["traj"]
+            out["traj"] = {k: (None if tr.get(k) is None else jax.tree_util.tree_map(stitch, tr[k])) for k in tr}
+        return out
+
+    def shoot_nodes(self, x, data=None):
+        """``x`` (n_vars,) with its node variables replaced by the states of a
+        single-shooting rollout of its controls (the intervals then join continuously):
+        ``K - 1`` evaluations of the compiled trajectory. ``x`` unchanged when
+        ``shooting == 1``. Returns a numpy array."""
+        x = np.array(x, dtype=float).reshape(-1)
+        if self.shooting == 1:
+            return x
+        from ..dynamics.configuration import difference
+        data = self.data() if data is None else data
+        traj, n = self.compiled("trajectory"), self.n_steps // self.shooting
+        vp = np.array(self.layout.vp_idx, int)
+        n0 = self.n_vars - self.n_node_vars
+        for i in range(1, self.shooting):
+            tr = traj(jnp.asarray(x), data)
+            q, v = tr["q"][i * n], tr["v"][i * n]
+            k = n0 + 2 * self.n_vp * (i - 1)
+            x[k: k + self.n_vp] = np.asarray(difference(data["model"], data["q0"], q))[vp]
+            x[k + self.n_vp: k + 2 * self.n_vp] = np.asarray(v)[vp]
+        return x
 
     def evaluate(self, x, data):
         """Pure JAX: dict ``f`` (scalar objective), ``c_eq`` (n_eq,), ``c_in`` (n_ineq,),
@@ -375,6 +474,8 @@ class MotionProblem:
         for c in self.constraints:
             val = jnp.atleast_1d(c.values(ctx, end, samples)).ravel()
             (eq if c.kind == "eq" else inq).append(val)
+        if self.shooting > 1:
+            eq.append(res["defects"])
         z = jnp.zeros(0, f.dtype)
         return dict(f=f, c_eq=jnp.concatenate(eq) if eq else z, c_in=jnp.concatenate(inq) if inq else z,
                     diverged=res["diverged"])
@@ -398,6 +499,9 @@ class MotionProblem:
             k = s.shape[0]
             out.append((c.kind, slice(n[c.kind], n[c.kind] + k), c.stage, c.label()))
             n[c.kind] += k
+        if self.shooting > 1:
+            k = 2 * self.n_vp * (self.shooting - 1)
+            out.append(("eq", slice(n["eq"], n["eq"] + k), 0, "shooting continuity"))
         return out
 
     def _term_sizes(self, x, data):
@@ -504,7 +608,7 @@ class MotionProblem:
             ctrl = self.spline.fit(np.asarray(ts, float), np.asarray(vals, float), **bc)
             cols.append(np.asarray(self.spline.reduce(ctrl, **{k2: v for k2, v in bc.items()})))
         x = np.stack(cols, axis=1).T.reshape(-1) if na else np.zeros(0)
-        return np.concatenate([x, np.zeros(self.n_vars - self.n_spline_vars)])
+        return np.concatenate([x, np.zeros(self.n_vars - self.n_spline_vars)])  # offsets and nodes: 0
 
     # ------------------------------------------------------------------ description
     def describe(self) -> dict:
@@ -518,7 +622,8 @@ class MotionProblem:
                     params={k: np.asarray(v).tolist() for k, v in self.params.items()},
                     costs=[c.describe() for c in self.costs], constraints=[c.describe() for c in self.constraints],
                     n_vars=self.n_vars, n_eq=self.n_eq, n_ineq=self.n_ineq,
-                    **({} if self.free_initial is None else {"free_initial": dict(self.free_initial)}))
+                    **({} if self.free_initial is None else {"free_initial": dict(self.free_initial)}),
+                    **({} if self.shooting == 1 else {"shooting": self.shooting}))
 
     def hash(self) -> str:
         """A short hash of `describe()` (which problem a checkpoint or solution is for)."""
@@ -527,4 +632,4 @@ class MotionProblem:
     def __repr__(self):
         return (f"MotionProblem({self.name!r}, model={self.model.name!r}, active={list(self.active)}, "
                 f"t_final={self.t_final}, n_ctrl={self.spline.n_ctrl}, dt={self.dt:g}, n_vars={self.n_vars}, "
-                f"n_eq={self.n_eq}, n_ineq={self.n_ineq})")
+                f"n_eq={self.n_eq}, n_ineq={self.n_ineq}" + (f", shooting={self.shooting})" if self.shooting > 1 else ")"))

@@ -246,6 +246,8 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     t0 = time.perf_counter()
     # compile once (timed separately): values + derivatives, then the trajectory
     data0 = problem.data(params=plan[start_stage][0], q0=q0, v0=v0)
+    if x0 is None and resume is None and problem.shooting > 1:
+        x = problem.shoot_nodes(x, data0)  # the default guess's nodes: its own rollout
     tc = time.perf_counter()
     fj = problem.compiled("fun_jac")
     fj(jnp.asarray(x), data0)[0].block_until_ready()

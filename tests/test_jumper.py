@@ -36,6 +36,31 @@ def test_contact_distance_sizes_and_selection():
                                               "window": (0.05, 0.1), "geoms": None, "stage": 0}
 
 
+def test_contact_distance_upper_bound_keeps_points_loaded():
+    """``max_distance``: ``max - d`` after the lower bounds; alone without a lower bound;
+    the values are exactly ``d`` of the recorded contact data."""
+    import jax.numpy as jnp
+
+    both = constraints.ContactDistance(0.0, geoms="legs", max_distance=0.008)
+    upper = constraints.ContactDistance(max_distance="clear", geoms="legs")
+    p = _tumbler_problem([both, upper])
+    n = len(p.sample_idx) * 2  # two end spheres of the legs' capsule
+    assert p.n_ineq == 2 * n + n
+    assert p.describe()["constraints"][0]["max_distance"] == 0.008
+    assert p.describe()["constraints"][1]["min_distance"] is None
+    d = p.data()
+    tr = p.trajectory(jnp.asarray(p.x0), d)
+    ci = np.asarray(p.evaluate(jnp.asarray(p.x0), d)["c_in"])
+    labels = cs.contact_labels(p.model, p.env)
+    legs = [i for i, lab in enumerate(labels) if lab[0] == "legs"]
+    dd = np.asarray(tr["contact"].d)[p.sample_idx][:, legs].ravel()
+    np.testing.assert_allclose(ci[:n], dd, atol=1e-15)
+    np.testing.assert_allclose(ci[n:2 * n], 0.008 - dd, atol=1e-15)
+    np.testing.assert_allclose(ci[2 * n:], 0.01 - dd, atol=1e-15)
+    with pytest.raises(ProblemError, match="min_distance, max_distance or both"):
+        constraints.ContactDistance()
+
+
 def test_contact_distance_bad_input():
     with pytest.raises(ProblemError, match="no environment"):
         _tumbler_problem([constraints.ContactDistance(0.0)], env=False)

@@ -97,3 +97,10 @@ def test_bad_shooting_is_refused():
         MotionProblem(m, ["elbow"], 1.0, 8, 0.1, np.zeros(2), shooting=3)
     with pytest.raises(ProblemError, match="positive integer"):
         MotionProblem(m, ["elbow"], 1.0, 8, 0.1, np.zeros(2), shooting=0)
+
+
+def test_variable_groups_partition_x(multi):
+    g = multi.variable_groups()
+    allidx = np.concatenate([g[k] for k in ("spline", "initial_q", "initial_v", "node_q", "node_v")])
+    np.testing.assert_array_equal(np.sort(allidx), np.arange(multi.n_vars))
+    assert len(g["node_q"]) == len(g["node_v"]) == K - 1 and len(g["spline"]) == multi.n_spline_vars

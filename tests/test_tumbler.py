@@ -89,6 +89,14 @@ def test_stage_trust_region_bounds(model):
     np.testing.assert_allclose(slb, np.maximum(lb, xc - 0.2))
     np.testing.assert_allclose(sub, np.minimum(ub, xc + 0.2))
     assert np.all(slb <= xc) and np.all(xc <= sub)
+    r = np.linspace(0.01, 0.3, p.n_vars)  # one radius per variable
+    p.solve_options["trust_region"] = r
+    slb, sub = _stage_bounds(p, x)
+    np.testing.assert_allclose(slb, np.maximum(lb, xc - r))
+    np.testing.assert_allclose(sub, np.minimum(ub, xc + r))
+    p.solve_options["trust_region"] = np.ones(3)
+    with pytest.raises(cs.InputError, match="trust_region"):
+        _stage_bounds(p, x)
     p.solve_options.pop("trust_region")
     for a, b in zip(_stage_bounds(p, x), (lb, ub)):
         np.testing.assert_array_equal(a, b)
@@ -128,3 +136,25 @@ def test_segment_solve_meets_criteria(name):
     assert all(c["ok"] for c in crit.values()), crit
     fid = report.fidelity(p, sol)
     assert fid["ok"], fid["flags"]
+
+
+def test_bridge_guess_keeps_feet_then_hands_on_the_floor(model):
+    """The handstand's ``guess="bridge"`` (multiple shooting): its node states pivot about
+    the planted feet, then about the planted hands, so the supporting contact points stay
+    at the resting sink (the guess is geometrically contact-consistent); it starts at the
+    start posture and ends at the nominal handstand; it needs ``shooting > 1``."""
+    env, contact = T._env_contact()
+    p = T.tumbler_segment("handstand", model=model, shooting=10, guess="bridge")
+    assert p.shooting == 10 and p.node_guess is not None and len(p.solve_options["schedule"]) == 1 + len(T.REST_RAMP)
+    labels = cs.contact_labels(model, env)
+    sink = T.start_q(model)[1] - (0.30 + 0.15 + 0.03)
+    for t in np.linspace(0.0, 2.0, 11):
+        q, v = p.node_guess(t)
+        d = np.asarray(cs.contact_forces(model, env, contact, q, v).d)
+        support = [i for i, lab in enumerate(labels) if lab[0] in (("foot", "legs") if t <= 0.8 else ("palm", "arms"))]
+        assert np.min(d[support]) == pytest.approx(sink, abs=2e-3), (t, d)
+        assert np.min(d) > sink - 2e-3  # nothing else below the floor
+    np.testing.assert_allclose(p.node_guess(0.0)[0], T.start_q(model), atol=1e-12)
+    np.testing.assert_allclose(p.node_guess(2.0)[0], T.handstand_q(model) + [0.2951, 0, 0, 0, 0], atol=1e-3)
+    with pytest.raises(ValueError, match="bridge"):
+        T.tumbler_segment("handstand", model=model, guess="bridge")

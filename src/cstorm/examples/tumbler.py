@@ -198,6 +198,21 @@ class ScaledTorqueLimits(K.Constraint):
         return {"type": "ScaledTorqueLimits", "factor": self.factor, "stage": self.stage}
 
 
+#: the foot's contact points (heel and toe) stay within this distance of the ground
+#: while the arms swing in the last segment (m; ``d_on`` = 0.01 m, at rest 0.0055 m)
+FOOT_FLAT = 0.008
+
+
+def FootFlat(max_distance=FOOT_FLAT):
+    """The foot kept flat on the ground (`constraints.ContactDistance` with
+    ``max_distance``, level 0): heel and toe stay loaded, so the robot does not rock onto
+    one edge; where an edge nearly lifts, the terminal state depends on the controls
+    through the C1 end of the force ramp and SLSQP's linearizations fail (measured on the
+    ``start`` segment: the terminal pitch rate moved 20x more than predicted for a 0.02
+    rad step)."""
+    return K.ContactDistance(max_distance=max_distance, geoms=("foot",), stage=0, name="foot flat")
+
+
 def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
     """Terminal base pitch within ``pitch_tol`` (rad; a number or a parameter's name) of
     the ``pitch`` parameter, the base at rest within ``vtol`` (m/s, rad/s) and the torque
@@ -223,6 +238,49 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
 #: tips over the hands onto the back) give the terminal constraints no gradient: SLSQP
 #: stalls there (see the module docstring, Status).
 HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.5, (0.16, 0.0)), (1.0, (0.0, 0.0)))
+#: the handstand's "bridge" guess (``guess="bridge"``, for multiple shooting): lean
+#: forward about the planted feet, legs vertical, into a pike bridge with the hands on the
+#: floor ahead (torso pitch `BRIDGE_PITCH`, arms vertical) at 40 % of T, then swing the
+#: legs up about the planted hands into the handstand
+BRIDGE_PITCH = 1.75  # rad: pi/2 + the torso's tilt where the arms (0.25 m) are shorter than the legs (0.30 m)
+BRIDGE_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.4, (-BRIDGE_PITCH, np.pi - BRIDGE_PITCH)), (1.0, (0.0, 0.0)))
+
+
+def bridge_nodes(model, t_final):
+    """The base path of the bridge guess as a ``node_guess`` (``t -> (q, v)``): the pitch
+    follows smoothstep ramps 0 -> `BRIDGE_PITCH` (0 to 0.4 T) -> pi (to T), and the torso
+    centre the kinematics of a body pivoting about its planted feet (legs vertical, hip
+    ``-pitch``), then about its planted hands (arms vertical, shoulder ``pi - pitch``);
+    joints as `BRIDGE_KEYFRAMES`. A posture-level guess: contact-consistent in geometry,
+    not in dynamics (the optimizer closes the shooting defects)."""
+    P = robots.TUMBLER
+    half = P["torso"]["length"] / 2
+    hip_z = start_q(model)[1] - half  # the hip above the planted feet
+    sh_z = handstand_q(model)[1] - half  # the shoulder above the planted hands
+    pb = BRIDGE_PITCH
+    sh_x = 2 * half * np.sin(pb)  # the shoulder's x at the bridge (hip at x = 0)
+    t1 = 0.4 * t_final
+
+    def node(t):
+        first = t < t1
+        h = t1 if first else t_final - t1
+        u = float(np.clip((t if first else t - t1) / h, 0.0, 1.0))
+        w, dw = u * u * (3 - 2 * u), 6 * u * (1 - u) / h
+        if first:
+            phi, dphi = pb * w, pb * dw
+            c = np.array([half * np.sin(phi), hip_z + half * np.cos(phi)])
+            dc = half * np.array([np.cos(phi), -np.sin(phi)]) * dphi
+            j, dj = np.array([-phi, ARMS_DOWN + (np.pi - pb - ARMS_DOWN) * w]), np.array(
+                [-dphi, (np.pi - pb - ARMS_DOWN) * dw])
+        else:
+            phi, dphi = pb + (np.pi - pb) * w, (np.pi - pb) * dw
+            c = np.array([sh_x - half * np.sin(phi), sh_z - half * np.cos(phi)])
+            dc = -half * np.array([np.cos(phi), -np.sin(phi)]) * dphi
+            j, dj = np.array([-pb * (1 - w), np.pi - phi]), np.array([pb * dw, -dphi])
+        return np.array([c[0], c[1], phi, *j]), np.array([dc[0], dc[1], dphi, *dj])
+    return node
+
+
 #: the handstand's continuation on the terminal pitch (equality; level 0)
 HANDSTAND_PITCH_RAMP = (0.15, 0.3, 0.6, 1.0, 1.4, 1.8, 2.2, 2.6, 2.9, np.pi)
 #: the roll's guess: tip the body forward with the shoulder (arms pinned on the floor, the
@@ -247,7 +305,7 @@ def _plan(pitch_ramp=(), rest_ramp=REST_RAMP):
 
 
 def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: float | None = None, q0=None,
-                    v0=None, model=None):
+                    v0=None, model=None, shooting: int = 1, guess: str = "default"):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
 
     Args:
@@ -256,12 +314,20 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
       t_final: duration (s; default per segment).
       q0, v0: start state (default: the segment's nominal start posture at rest; in a
         sequence the previous segment's end state replaces it).
+      shooting: multiple-shooting intervals (see `cstorm.optimize.problem`).
+      guess: ``"default"`` (the keyframes documented at each segment), or for the
+        handstand ``"bridge"`` (`BRIDGE_KEYFRAMES` with `bridge_nodes` as the nodes' guess;
+        needs ``shooting > 1``) with the terminal pitch at pi from the first stage.
     """
     from ._hopping import keyframe_guess
 
     model = robots.tumbler(feet=True) if model is None else model
     env, contact = _env_contact()
-    common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=40)
+    common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=40,
+                  shooting=shooting)
+    if guess not in ("default", "bridge") or (guess == "bridge" and (name != "handstand" or shooting < 2)):
+        raise ValueError(f"tumbler_segment: guess={guess!r} is not available for {name!r} with shooting={shooting} "
+                         "(guesses: 'default'; 'bridge' for the handstand with shooting > 1)")
     rest_params = {"ptol": 2e-4, "vtol": 5e-4, "tau_factor": 1.0}
     if name == "handstand":
         T = 2.0 if t_final is None else t_final
@@ -272,6 +338,11 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
         p.solve_options["schedule"] = _plan(HANDSTAND_PITCH_RAMP)
         # the ramp's stages only warm-start the next one: a loose tolerance is enough
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60)
+        if guess == "bridge":
+            T_ = p.t_final
+            p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
+            p.node_guess = bridge_nodes(model, T_)
+            p.solve_options["schedule"] = _plan((np.pi,))
     elif name == "roll":
         T = 1.5 if t_final is None else t_final
         q0 = handstand_q(model) if q0 is None else q0
@@ -298,7 +369,8 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
         q0 = standing_q(model) if q0 is None else q0
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0,
                           q_final_active={"hip": 0.0, "shoulder": ARMS_DOWN}, rest_end=True,
-                          constraints=_rest_terms(pitch_tol=0.05), params={"pitch": 2 * np.pi, **rest_params},
+                          constraints=_rest_terms(pitch_tol=0.05) + [FootFlat()],
+                          params={"pitch": 2 * np.pi, **rest_params},
                           initial_guess=keyframe_guess(START_KEYFRAMES, T, ("hip", "shoulder")), **common)
         p.solve_options["schedule"] = _plan()
         p.solve_options.update(intermediate_tol=1e-6, intermediate_max_iter=60, first_step=0.05, trust_region=0.05)

@@ -192,12 +192,21 @@ class ContactDistance(Constraint):
     spheres, box corners, ...). With ``min_distance >= d_on`` of the contact parameters
     the contact force is exactly zero in the window: a flight phase. Needs a problem with
     ``env`` and ``contact``. Between samples the constraint is not enforced (the grid has
-    ``n_path_samples`` points)."""
+    ``n_path_samples`` points).
+
+    ``max_distance`` (m, or a parameter's name; default None) adds the opposite bound
+    ``max_distance - d_i(t) >= 0`` (after the lower bounds): contact points kept loaded,
+    e.g. a foot kept flat on the ground (``max_distance < d_on``: every point of the foot
+    carries force and stays off the ``d_on`` end of the force ramp, where the force law is
+    only C1, so the motion depends smoothly on the controls). ``min_distance=None`` with a
+    ``max_distance`` gives the upper bound alone."""
 
     kind = "ineq"
 
-    def __init__(self, min_distance, window=None, geoms=None, stage=0, name=None):
-        self.min_distance = min_distance
+    def __init__(self, min_distance=None, window=None, geoms=None, stage=0, name=None, max_distance=None):
+        if min_distance is None and max_distance is None:
+            raise ProblemError("ContactDistance: give min_distance, max_distance or both")
+        self.min_distance, self.max_distance = min_distance, max_distance
         self.window = None if window is None else (float(window[0]), float(window[1]))
         self.geoms = [geoms] if isinstance(geoms, str) else (None if geoms is None else list(geoms))
         _set_common(self, "ineq", stage, name)
@@ -235,14 +244,22 @@ class ContactDistance(Constraint):
                 raise ProblemError(f"ContactDistance: no constraint-grid sample lies in the window {self.window} s "
                                    f"(samples every {t[1] - t[0]:.4g} s); widen it or raise n_path_samples")
         d = samples["contact"].d[rows][:, self._pts]
-        return (d - resolve(self.min_distance, ctx.params)).ravel()
+        out = []
+        if self.min_distance is not None:
+            out.append((d - resolve(self.min_distance, ctx.params)).ravel())
+        if self.max_distance is not None:
+            out.append((resolve(self.max_distance, ctx.params) - d).ravel())
+        return jnp.concatenate(out)
 
     def label(self):
         return self.name or "ContactDistance"
 
     def describe(self):
-        return {"type": "ContactDistance", "min_distance": _jsonable(self.min_distance), "window": self.window,
-                "geoms": self.geoms, "stage": self.stage}
+        out = {"type": "ContactDistance", "min_distance": _jsonable(self.min_distance), "window": self.window,
+               "geoms": self.geoms, "stage": self.stage}
+        if self.max_distance is not None:
+            out["max_distance"] = _jsonable(self.max_distance)
+        return out
 
 
 class Periodic(Constraint):

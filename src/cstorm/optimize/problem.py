@@ -36,7 +36,11 @@ values (rad or m, rad/s or m/s). The recorded trajectory stitches the intervals 
 one continuous motion. Why: the terminal state of a balancing or falling robot is
 exponentially sensitive to early controls; splitting the horizon bounds that growth
 per interval, so the linearizations SLSQP builds on stay good. `shoot_nodes` fills the
-node variables from a single-shooting rollout (what `solve` does with the default guess).
+node variables from a single-shooting rollout (what `solve` does with the default guess)
+unless the problem has a ``node_guess``: a callable ``t -> (q (nq,), v (nv,))``, a
+state-level guess (e.g. a body rotating from standing to inverted) whose passive parts
+become the nodes at their times; the intervals then need not join at the guess, and the
+optimizer closes the defects.
 
 Everything the compiled functions read that is a number — the model's
 arrays, ``q0``, ``v0``, the end values and the problem parameters — is a dynamic
@@ -144,6 +148,8 @@ class MotionProblem:
       shooting: number of shooting intervals ``K`` (default 1: single shooting); ``N`` must
         be a multiple of ``K`` and every joint wholly active or wholly passive (see the
         module docstring).
+      node_guess: optional callable ``t -> (q (nq,), v (nv,))``: the nodes of the default
+        guess (multiple shooting; default: the guess's own rollout).
       success_criteria: optional problem-specific success criteria, checked after a
         solve by `cstorm.report.evaluate_criteria` (and reported in ``summary.json`` by
         ``cstorm solve``): a callable ``(solution) -> {name: {"value", "tol", "ok"}}`` or
@@ -159,7 +165,7 @@ class MotionProblem:
                  q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
                  constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
                  jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None,
-                 free_initial=None, shooting=1):
+                 free_initial=None, shooting=1, node_guess=None):
         require_x64("MotionProblem")
         self.model = model
         self.name = str(name)
@@ -210,6 +216,9 @@ class MotionProblem:
                                        f"wholly passive; joint {jn!r} is partly active")
         self.n_vp = len(self.layout.vp_idx)
         self.n_node_vars = 2 * self.n_vp * (self.shooting - 1)
+        if node_guess is not None and not callable(node_guess):
+            raise ProblemError("MotionProblem: node_guess must be a callable t -> (q (nq,), v (nv,))")
+        self.node_guess = node_guess
         self.params = {k: np.asarray(v, dtype=float) for k, v in (params or {}).items()}
         self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
         self.constraints = list(constraints or [])
@@ -436,10 +445,23 @@ class MotionProblem:
             out["traj"] = {k: (None if tr.get(k) is None else jax.tree_util.tree_map(stitch, tr[k])) for k in tr}
         return out
 
+    def variable_groups(self) -> dict:
+        """Index arrays into ``x`` by kind: ``"spline"`` (free control points),
+        ``"initial_q"``, ``"initial_v"`` (free-initial offsets), ``"node_q"``, ``"node_v"``
+        (multiple-shooting nodes' positions and velocities); e.g. to build per-variable
+        bounds or trust radii."""
+        n0 = self.n_spline_vars
+        n1 = n0 + len(self._fi_dq)
+        n2 = n1 + len(self._fi_dv)
+        nodes = np.arange(n2, self.n_vars).reshape(max(self.shooting - 1, 0), 2, self.n_vp)
+        return dict(spline=np.arange(n0), initial_q=np.arange(n0, n1), initial_v=np.arange(n1, n2),
+                    node_q=nodes[:, 0].ravel(), node_v=nodes[:, 1].ravel())
+
     def shoot_nodes(self, x, data=None):
         """``x`` (n_vars,) with its node variables replaced by the states of a
         single-shooting rollout of its controls (the intervals then join continuously):
-        ``K - 1`` evaluations of the compiled trajectory. ``x`` unchanged when
+        ``K - 1`` evaluations of the compiled trajectory; or, when the problem has a
+        ``node_guess``, by its states at the node times. ``x`` unchanged when
         ``shooting == 1``. Returns a numpy array."""
         x = np.array(x, dtype=float).reshape(-1)
         if self.shooting == 1:
@@ -450,8 +472,14 @@ class MotionProblem:
         vp = np.array(self.layout.vp_idx, int)
         n0 = self.n_vars - self.n_node_vars
         for i in range(1, self.shooting):
-            tr = traj(jnp.asarray(x), data)
-            q, v = tr["q"][i * n], tr["v"][i * n]
+            if self.node_guess is None:
+                tr = traj(jnp.asarray(x), data)
+                q, v = tr["q"][i * n], tr["v"][i * n]
+            else:
+                q, v = (np.asarray(a, float).reshape(-1) for a in self.node_guess(float(self.t[i * n])))
+                if q.shape != (self.model.nq,) or v.shape != (self.model.nv,):
+                    raise ProblemError(f"{self.name}: node_guess(t) must return q ({self.model.nq},) and v "
+                                       f"({self.model.nv},), got {q.shape} and {v.shape}")
             k = n0 + 2 * self.n_vp * (i - 1)
             x[k: k + self.n_vp] = np.asarray(difference(data["model"], data["q0"], q))[vp]
             x[k + self.n_vp: k + 2 * self.n_vp] = np.asarray(v)[vp]

@@ -399,8 +399,9 @@ def variable_bounds(problem):
 
 def _stage_bounds(problem, x):
     """The variable bounds of one stage that starts at ``x``: `variable_bounds`, and with
-    ``problem.solve_options["trust_region"] = r`` (same units as ``x``) also within ``r``
-    of ``x`` (a box trust region per stage that moves with the solve: SLSQP's linearized
+    ``problem.solve_options["trust_region"] = r`` (same units as ``x``; a number or one
+    radius per variable, e.g. smaller for multiple-shooting nodes of a body resting on a
+    stiff contact) also within ``r`` of ``x`` (a box trust region per stage that moves with the solve: SLSQP's linearized
     constraints otherwise throw a warm start radians away; a continuation plan can still
     travel far, ``r`` per stage). ``x`` is first moved into the bounds."""
     lb, ub = variable_bounds(problem)
@@ -408,7 +409,11 @@ def _stage_bounds(problem, x):
     if r is None:
         return lb, ub
     xc = _clip_into(np.asarray(x, float), lb, ub)
-    return np.maximum(lb, xc - float(r)), np.minimum(ub, xc + float(r))
+    r = np.asarray(r, float)
+    if r.shape not in ((), xc.shape):
+        raise InputError(f"solve: solve_options['trust_region'] must be a number or have shape {xc.shape} (one "
+                         f"radius per variable), got shape {r.shape}")
+    return np.maximum(lb, xc - r), np.minimum(ub, xc + r)
 
 
 def _clip_into(x, lb, ub):

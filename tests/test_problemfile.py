@@ -111,6 +111,10 @@ def test_overrides():
     assert p.dt == 0.05 and p.costs[0].weight == 2.0 and p.solve_options["max_iter"] == 7
     with pytest.raises(ProblemFileError, match="'cost.3' needs an index < 1|needs an index < 1"):
         load_problem_text(TEXT, EXAMPLE, {"cost.3.weight": 1.0})
+    p5 = load_problem_text(TEXT, EXAMPLE, {"motion.shooting": 5})
+    assert p5.shooting == 5 and p5.n_vars == p.n_vars + 2 * 4 and load_problem_text(TEXT, EXAMPLE).shooting == 1
+    with pytest.raises(ProblemFileError, match="shooting=7 must divide the number of steps"):
+        load_problem_text(TEXT, EXAMPLE, {"motion.shooting": 7})
     with pytest.raises(ProblemFileError, match=r"'motion.dt' is a value, not a table"):
         apply_overrides({"motion": {"dt": 1.0}}, {"motion.dt.x": 1}, "f.toml")
 

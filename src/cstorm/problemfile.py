@@ -256,7 +256,7 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
     W = "[motion]"
     ctx.keys(mot, {"active", "t_final", "dt", "n_ctrl", "integrator", "q0", "v0", "q_final_active",
                    "v_final_active", "rest_start", "rest_end", "params", "initial_guess", "n_path_samples",
-                   "jacobian", "q_bound", "v_bound"}, W)
+                   "jacobian", "q_bound", "v_bound", "shooting"}, W)
     if "active" not in mot:
         raise ctx.err(W, "missing key 'active' (the names of the actuated joints)")
     active = ctx.names(mot["active"], f"{W} active", joints)
@@ -355,6 +355,8 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
                              n_path_samples=int(ctx.number(mot, "n_path_samples", "[motion]", default=50,
                                                            integer=True, positive=True)),
                              initial_guess=guess,
+                             shooting=int(ctx.number(mot, "shooting", "[motion]", default=1, integer=True,
+                                                     positive=True)),
                              jacobian=ctx.string(mot, "jacobian", "[motion]", default="auto",
                                                  choices=("auto", "fwd", "rev")),
                              q_bound=ctx.number(mot, "q_bound", "[motion]", default=1e4, positive=True),

@@ -102,10 +102,37 @@ Status (measured on the shared 2-core machine, load 3-10, ~1-17 s per SLSQP iter
 - ``roll`` and ``standing``: not run (the roll needs the handstand's end state in the
   sequence; ``--segment roll`` starts from the nominal handstand).
 
-What to try next: the continuation (b) with a per-stage trust region of ~0.05 rad (the
-value that kept ``start`` upright) and smaller pitch steps; IPOPT per stage; multiple
-shooting (the terminal state of a balancing robot is exponentially sensitive to early
-controls); a stiffer contact or a wider foot (standing is only marginally stable).
+Session 5 (multiple shooting, `MotionProblem(shooting=K)`; load 3-4):
+
+- ``start`` with K = 4 (the plan above): stages 1-5 (base velocities to 1e-2) in 8
+  SLSQP iterations and 75 s including compile (single shooting needed dozens), then the
+  1e-3 stage cycled (violation 0.04-0.4) to its 60-iteration limit and the last stage
+  sat at 0.27. K = 10: the same, stage 5 already erratic. K = 5 with per-variable trust
+  radii (spline 0.05 rad, node positions 3 mm, node velocities 0.03): stalled in stage
+  4 at violation 3e-2. IPOPT, K = 4, no trust region: wandered to cheaper but
+  infeasible motions (cost 0.18-0.26, violation 1e-3 .. 8e-3), stage 1 hit its
+  iteration limit. Single shooting with the foot kept flat (`FootFlat`): stages 1-5 in
+  46 iterations (0.4 s each), then the same cycling, one trial step tipping the robot
+  over (violation 4.9). Contact damping 300 N s/m instead of 100: the first stage
+  already tipped over (violation 1.8 after a 0.07 rad step).
+  *Measured cause*: at the best single-shooting iterate the Jacobian of the terminal
+  base velocities has singular values 7.2, 0.081 and 2.2e-4, and a step of 0.1 x the
+  Newton step for (x rate, pitch rate) (0.02 rad) moved the pitch rate from 0.0226 to
+  0.0011 where the linearization predicted 0.0203: the rest condition depends on the
+  controls far from linearly within the box that keeps the robot on its feet.
+- ``handstand`` with ``guess="bridge"`` (K = 10): the guess's shooting defects start at
+  ~4; SLSQP without a trust region stepped up to 8 rad and the violation grew to 12;
+  IPOPT grew it to ~30 (steps that put the body into the floor, where the stiff contact
+  makes intervals explode). A stage-wise box trust region cannot help here: the nodes
+  must move further than any box that keeps the contact tame.
+
+What to try next: a real trust-region SQP (radius adapted to the actual vs predicted
+reduction, not a fixed box per stage); the rest condition as a window (base velocities
+small over the last 0.2-0.3 s, which averages the rocking phase) or a longer final
+hold; more control points in the last half second; contact-implicit defects (node
+states projected onto the contact manifold) for the bridge guess; a wider or stiffer
+foot (standing is only marginally stable: the foot's rotational contact stiffness ~25 N
+m/rad against gravity's ~13 N m/rad).
 """
 
 from __future__ import annotations

@@ -138,7 +138,7 @@ def _err(text, match):
     ('file = "acrobot.urdf"', 'file = "nope.urdf"', "[robot] file: 'nope.urdf' not found"),
     ('type = "torque_squared"', 'type = "torque_cubed"', "[[cost]] #1 type: must be one of"),
     ("continuation = { target", "continuation = { goal", "[solver] continuation.goal: not a parameter"),
-    ('method = "slsqp"', 'method = "newton"', "[solver] method: must be one of ['slsqp', 'ipopt']"),
+    ('method = "slsqp"', 'method = "newton"', "[solver] method: must be one of ['slsqp', 'trust-constr', 'ipopt']"),
     ("[robot]", "[robots]", "top level: unknown key(s) ['robots']"),
     ('type = "final_v"', 'type = "final_w"', "[[criterion]] #2: unknown criterion type 'final_w'"),
     ("active = [\"elbow\"]", "active = [\"shoulder\", \"elbow\"]", "q_final_active: missing values for active joints"),

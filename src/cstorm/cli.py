@@ -298,7 +298,7 @@ def build_parser():
     ps.add_argument("--segment", default=None, metavar="NAME",
                     help="solve only this segment of a sequence (name or 0-based index), from the segment's own "
                          "nominal start state (its q0, v0)")
-    ps.add_argument("--method", choices=["slsqp", "ipopt"], default=None,
+    ps.add_argument("--method", choices=["slsqp", "trust-constr", "ipopt"], default=None,
                     help="solver (default: the problem's choice, else slsqp)")
     ps.add_argument("--max-iter", type=int, default=None, help="iteration limit per stage (default: the problem's, "
                                                                "else 500)")

@@ -309,7 +309,7 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
     ctx.keys(sol, {"method", "max_iter", "tol", "constraint_tol", "continuation", "schedule", "options"}, W)
     opts = {}
     if "method" in sol:
-        opts["method"] = ctx.string(sol, "method", W, choices=("slsqp", "ipopt"))
+        opts["method"] = ctx.string(sol, "method", W, choices=("slsqp", "trust-constr", "ipopt"))
     if "max_iter" in sol:
         opts["max_iter"] = ctx.number(sol, "max_iter", W, integer=True, positive=True)
     for k in ("tol", "constraint_tol"):

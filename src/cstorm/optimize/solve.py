@@ -167,6 +167,9 @@ def _plan(problem, continuation, schedule):
     return [({}, 0)]
 
 
+METHODS = ("slsqp", "trust-constr", "ipopt")
+
+
 def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedule=None, max_iter: int = 500,
           tol: float = 1e-8, constraint_tol: float = 1e-6, verbose: bool = False, callback=None,
           checkpoint=None, resume=None, options=None, out=None, objective_scale="auto") -> Solution:
@@ -174,8 +177,10 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
 
     Args:
       problem: a `MotionProblem` or a `MotionSequence`.
-      method: ``"slsqp"`` (scipy, default) or ``"ipopt"`` (needs casadi: ``pip install
-        cstorm[ipopt]``).
+      method: ``"slsqp"`` (scipy, default), ``"trust-constr"`` (scipy's trust-region SQP /
+        interior point with BFGS Hessians: its radius adapts to how well each step's
+        model predicted the change, for problems whose constraints are far from linear
+        over SLSQP's steps) or ``"ipopt"`` (needs casadi: ``pip install cstorm[ipopt]``).
       x0: initial decision vector (default ``problem.x0``).
       continuation: ``{param: [values...]}``, a ramp of problem parameters, one stage per
         value (defaults to ``problem.solve_options["continuation"]`` if set). Every
@@ -222,8 +227,8 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                    constraint_tol=1e-6, verbose=False, callback=None, checkpoint=None, resume=None, options=None,
                    out=None, q0=None, v0=None, objective_scale="auto"):
     method = method.lower()
-    if method not in ("slsqp", "ipopt"):
-        raise InputError(f"solve: method must be 'slsqp' or 'ipopt', got {method!r}")
+    if method not in METHODS:
+        raise InputError(f"solve: method must be one of {list(METHODS)}, got {method!r}")
     if continuation is None and schedule is None:
         continuation = problem.solve_options.get("continuation")
         schedule = problem.solve_options.get("schedule")
@@ -279,6 +284,8 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             s_it = max_iter if last else min(max_iter, problem.solve_options.get("intermediate_max_iter", max_iter))
             if method == "slsqp":
                 x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
+            elif method == "trust-constr":
+                x, solver_ok, message, nit = _run_trust_constr(ev, x, tracker, si, params_now, s_it, s_tol, options)
             else:
                 x, solver_ok, message, nit = _run_ipopt(ev, x, tracker, si, params_now, s_it, s_tol, options)
         except KeyboardInterrupt:
@@ -444,6 +451,44 @@ def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
     res = minimize(fun, _clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
                    callback=cb, bounds=bounds)
     return np.asarray(res.x), bool(res.success), f"SLSQP: {res.message}", int(res.nit)
+
+
+# ---------------------------------------------------------------------------------------
+# scipy trust-constr
+# ---------------------------------------------------------------------------------------
+def _run_trust_constr(ev, x, tracker, stage, params, max_iter, tol, options):
+    """scipy's ``trust-constr``: equality-constrained SQP in a trust region (with an
+    interior point for the inequalities), quasi-Newton (BFGS) Hessians of the objective
+    and of each constraint block. ``tol`` is its ``gtol`` and ``xtol``;
+    ``problem.solve_options["first_step"]`` its initial radius (default 1)."""
+    from scipy.optimize import BFGS, Bounds, NonlinearConstraint, minimize
+
+    cons = []
+    if ev.me.any():
+        cons.append(NonlinearConstraint(lambda x: ev.at(x)[1], 0.0, 0.0, jac=lambda x: ev.at(x)[5], hess=BFGS()))
+    if ev.mi.any():
+        cons.append(NonlinearConstraint(lambda x: ev.at(x)[2], 0.0, np.inf, jac=lambda x: ev.at(x)[6],
+                                        hess=BFGS()))
+
+    def fun(x):
+        v = ev.at(x)
+        return ev.fscale * v[0], ev.fscale * v[4]
+
+    def cb(intermediate_result):
+        tracker.record(intermediate_result.x, ev, stage, params)
+
+    opts = dict(maxiter=int(max_iter), gtol=float(tol), xtol=float(tol),
+                initial_tr_radius=float(ev.p.solve_options.get("first_step", 1.0)))
+    opts.update(options or {})
+    lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
+    bounds = Bounds(lb, ub, keep_feasible=True) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
+    x_in = _clip_into(x, lb, ub)
+    if bounds is not None:  # keep_feasible needs a strictly interior start
+        x_in = np.clip(x_in, lb + 1e-9 * (ub - lb), ub - 1e-9 * (ub - lb))
+    res = minimize(fun, x_in, jac=True, hess=BFGS(), method="trust-constr", constraints=cons, options=opts,
+                   callback=cb, bounds=bounds)
+    ok = res.status in (1, 2)  # success is decided on the violation by the caller
+    return np.asarray(res.x), bool(ok), f"trust-constr: {res.message}", int(res.nit)
 
 
 # ---------------------------------------------------------------------------------------

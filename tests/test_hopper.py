@@ -108,3 +108,17 @@ def test_capsule_inertia_is_mujocos():
         mass, I = H.capsule_inertia(H.HOPPER[key]["radius"], H.HOPPER[key]["length"])
         np.testing.assert_allclose(mass, m.body_mass[i], rtol=1e-14)
         np.testing.assert_allclose(I, m.body_inertia[i], rtol=1e-13)
+
+
+def test_multiple_shooting_default_and_bounds():
+    """The default problem uses 4 shooting intervals; the node states (18 variables after
+    the 18 control points) are unbounded, the control points keep single shooting's
+    trust-region bounds, and the plan is the same."""
+    p4, p1 = H.hopper(), H.hopper(shooting=1)
+    assert p4.shooting == 4 and p1.shooting == 1
+    assert p4.n_vars == p1.n_vars + 18 == 36
+    ns = p1.n_vars
+    np.testing.assert_array_equal(p4.x_bounds[0][:ns], p1.x_bounds[0])
+    np.testing.assert_array_equal(p4.x_bounds[1][:ns], p1.x_bounds[1])
+    assert np.all(np.isneginf(p4.x_bounds[0][ns:])) and np.all(np.isposinf(p4.x_bounds[1][ns:]))
+    assert p4.solve_options == p1.solve_options

@@ -310,7 +310,7 @@ RAMP = ((1 / 3, 0.05), (2 / 3, 0.02), (5 / 6, 0.01), (0.91625, 0.01), (1.0, 0.01
 def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ctrl, dt, clearance, max_pitch,
                 w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
                 intermediate_max_iter=60, n_path_samples=50, trust=1.0, margin=1.0, first_step=None,
-                land_tol=1e-6, ramp=None, max_penetration=0.01):
+                land_tol=1e-6, ramp=None, max_penetration=0.01, shooting=1):
     """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
     that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
     root_z, root_pitch`` then the active joints) and ends in the same posture, at rest,
@@ -351,7 +351,9 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
       ``first_step`` (rad) SLSQP's first step of each stage is about that long (see
       `cstorm.solve`'s ``objective_scale``), not a radian;
     - ``problem.success_criteria``: `hop_criteria` with ``min_flight`` (s) and
-      ``max_penetration`` (m).
+      ``max_penetration`` (m);
+    - ``shooting``: `MotionProblem`'s multiple shooting intervals (default 1: single
+      shooting); the node states are not bounded by ``trust``.
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
     from ..environment import Environment, ground
     from ..optimize import costs, constraints
@@ -377,13 +379,16 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
                 "land_tol": land_tol},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
-        initial_guess=keyframe_guess(keyframes, t_final, active),
+        initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
     )
     from ..optimize.solve import variable_bounds
 
     lb, ub = variable_bounds(prob)  # the joint limits
     x0 = np.asarray(prob.x0, float)
     prob.x_bounds = (np.maximum(lb - margin, x0 - trust), np.minimum(ub + margin, x0 + trust))
+    if shooting > 1:  # the node states (after the control points) are not bounded
+        ns = prob.n_spline_vars
+        prob.x_bounds[0][ns:], prob.x_bounds[1][ns:] = -np.inf, np.inf
     d_on = float(np.max(np.asarray(contact.d_on)))
 
     def criteria(solution):

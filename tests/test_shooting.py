@@ -104,3 +104,9 @@ def test_variable_groups_partition_x(multi):
     allidx = np.concatenate([g[k] for k in ("spline", "initial_q", "initial_v", "node_q", "node_v")])
     np.testing.assert_array_equal(np.sort(allidx), np.arange(multi.n_vars))
     assert len(g["node_q"]) == len(g["node_v"]) == K - 1 and len(g["spline"]) == multi.n_spline_vars
+
+
+def test_trust_constr_with_unbounded_node_variables(multi):
+    """trust-constr takes the nodes' infinite bounds (only the splines are boxed)."""
+    s = solve(multi, method="trust-constr", max_iter=3)
+    assert np.all(np.isfinite(s.x)) and s.iterations >= 1

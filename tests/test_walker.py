@@ -233,7 +233,7 @@ def test_walker_problem_structure(shooting):
 def test_walker_solve_meets_criteria():
     """The shipped plan (multiple shooting, speed ramp, swing clearance last) from the
     default posture guess: solved, every success criterion and the fidelity check hold
-    (measured ~350 iterations, ~7 min incl. compile on 2 cores)."""
+    (measured 412 iterations, ~11 min incl. compile on 2 loaded cores)."""
     from cstorm import report
 
     p = cs.examples.get("walker")()

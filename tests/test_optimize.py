@@ -192,3 +192,22 @@ def test_variable_bounds_follow_joint_limits():
     a = examples.get("acrobot")(**FAST)
     lb, ub = variable_bounds(a)
     assert np.all(np.isinf(lb)) and np.all(np.isinf(ub))
+
+
+def test_terminal_state_acceleration_part():
+    """``TerminalState(joint, v=..., a=...)``: the values are the final velocity, then the
+    final acceleration (the dynamics' passive acceleration at the end state) minus their
+    targets; as an inequality ``tol -/+ error``; ``a`` alone is enough."""
+    import jax.numpy as jnp
+    m = acrobot_model()
+    cons = [constraints.TerminalState("shoulder", v=0.0, a=0.5),
+            constraints.TerminalState("shoulder", a=0.0, kind="ineq", tol="atol")]
+    p = MotionProblem(m, ["elbow"], 0.4, 6, 0.02, np.array([0.3, 0.2]), constraints=cons, params={"atol": 2.0})
+    x = jnp.asarray(p.x0) + 0.1
+    r = p.evaluate(x, p.data())
+    tr = p.trajectory(x, p.data())
+    vT, aT = float(tr["v"][-1][0]), float(tr["a"][-1][0])
+    assert abs(aT) > 1e-3  # the passive shoulder is not at rest at 0.3 rad
+    np.testing.assert_allclose(np.asarray(r["c_eq"]), [vT, aT - 0.5], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(r["c_in"]), [2.0 - aT, 2.0 + aT], rtol=1e-12)
+    assert "a" in cons[0].describe() and "a" not in constraints.TerminalState("shoulder", v=0.0).describe()

@@ -526,8 +526,8 @@ def _cost(ctx, c, k, joints, params, C):
         return (C.TorqueSquared if t == "torque_squared" else C.Power)(weight=weight, joints=js)
     if t == "state_target":
         j = ctx.names(c["joint"], f"{w} joint", joints)[0]
-        if "q" not in c and "v" not in c:
-            raise ctx.err(w, "give q and/or v")
+        if "q" not in c and "v" not in c and "a" not in c:
+            raise ctx.err(w, "give q, v and/or a")
         q = ctx.value_or_param(c["q"], f"{w} q", params) if "q" in c else None
         v = ctx.value_or_param(c["v"], f"{w} v", params) if "v" in c else None
         wv = ctx.value_or_param(c["weight_v"], f"{w} weight_v", params) if "weight_v" in c else None
@@ -542,7 +542,7 @@ def _cost(ctx, c, k, joints, params, C):
 
 
 _CONSTRAINTS = {
-    "terminal_state": ({"joint", "q", "v", "kind", "tol", "stage", "name"}, {"joint"}),
+    "terminal_state": ({"joint", "q", "v", "a", "kind", "tol", "stage", "name"}, {"joint"}),
     "joint_limits": ({"joints", "position", "velocity", "stage", "name"}, set()),
     "torque_limits": ({"limits", "joints", "stage", "name"}, set()),
 }
@@ -561,15 +561,16 @@ def _constraint(ctx, c, k, joints, params, K):
     name = ctx.string(c, "name", w)
     if t == "terminal_state":
         j = ctx.names(c["joint"], f"{w} joint", joints)[0]
-        if "q" not in c and "v" not in c:
-            raise ctx.err(w, "give q and/or v")
+        if "q" not in c and "v" not in c and "a" not in c:
+            raise ctx.err(w, "give q, v and/or a")
         kind = ctx.string(c, "kind", w, default="eq", choices=("eq", "ineq"))
         tol = ctx.value_or_param(c.get("tol", 0.0), f"{w} tol", params)
         if kind == "ineq" and "tol" not in c:
             raise ctx.err(w, "kind = \"ineq\" needs tol (|error| <= tol)")
         q = ctx.value_or_param(c["q"], f"{w} q", params) if "q" in c else None
         v = ctx.value_or_param(c["v"], f"{w} v", params) if "v" in c else None
-        return K.TerminalState(j, q=q, v=v, kind=kind, tol=tol, stage=stage, name=name)
+        a = ctx.value_or_param(c["a"], f"{w} a", params) if "a" in c else None
+        return K.TerminalState(j, q=q, v=v, a=a, kind=kind, tol=tol, stage=stage, name=name)
     if t == "joint_limits":
         js = ctx.names(c["joints"], f"{w} joints", joints) if "joints" in c else None
         return K.JointLimits(js, position=ctx.boolean(c, "position", w, True),

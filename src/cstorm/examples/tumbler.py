@@ -260,17 +260,20 @@ def FootFlat(max_distance=FOOT_FLAT):
 
 def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
     """Terminal base pitch within ``pitch_tol`` (rad; a number or a parameter's name) of
-    the ``pitch`` parameter, the base at rest within ``vtol`` (m/s, rad/s) and the torque
-    limits relaxed by ``tau_factor``: inequalities of level ``stage`` whose tolerances a
-    solve plan tightens. ``pitch_eq``: the terminal pitch is instead an equality of level
-    0 (for a continuation on ``pitch``)."""
+    the ``pitch`` parameter, the base at rest *at an equilibrium* (velocities within
+    ``vtol`` m/s, rad/s and accelerations within ``atol`` m/s^2, rad/s^2: a robot that
+    passes through a still posture while rocking on its compliant foot has zero velocity
+    but not zero acceleration, and fails the hold test) and the torque limits relaxed by
+    ``tau_factor``: inequalities of level ``stage`` whose tolerances a solve plan tightens.
+    ``pitch_eq``: the terminal pitch is instead an equality of level 0 (for a
+    continuation on ``pitch``)."""
     pitch = (K.TerminalState("root_pitch", q="pitch", stage=0, name="pitch") if pitch_eq else
              K.TerminalState("root_pitch", q="pitch", kind="ineq", tol=pitch_tol, stage=stage, name="pitch"))
-    return [pitch,
-            K.TerminalState("root_pitch", v=0.0, kind="ineq", tol="vtol", stage=stage, name="pitch rate"),
-            K.TerminalState("root_x", v=0.0, kind="ineq", tol="vtol", stage=stage, name="x rate"),
-            K.TerminalState("root_z", v=0.0, kind="ineq", tol="vtol", stage=stage, name="z rate"),
-            ScaledTorqueLimits(stage=stage)]
+    rest = []
+    for j, what in (("root_pitch", "pitch"), ("root_x", "x"), ("root_z", "z")):
+        rest += [K.TerminalState(j, v=0.0, kind="ineq", tol="vtol", stage=stage, name=f"{what} rate"),
+                 K.TerminalState(j, a=0.0, kind="ineq", tol="atol", stage=stage, name=f"{what} acceleration")]
+    return [pitch, *rest, ScaledTorqueLimits(stage=stage)]
 
 
 #: the default initial guess of the handstand: (fraction of T, (hip, shoulder) rad),
@@ -338,9 +341,8 @@ ROLL_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.3, (0.0, -0.6)), (0.7, (-1.0, -0.3)), (1
 START_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.5, (0.1, 1.5)), (1.0, (0.0, ARMS_DOWN)))
 #: "at rest" at the end of a segment: base velocities within this (m/s, rad/s), and the
 #: robot holds its posture for `HOLD` after T with the joints locked (a robot on the
-#: compliant, lightly damped contact rocks; 1e-2 rad/s of rocking is ~2 mrad of
-#: amplitude. Session 5 measured that tolerances of 1e-3 are far from linear in the
-#: controls and no solver converged there; the hold test checks what "at rest" is for)
+#: compliant, lightly damped contact rocks with a period of 1.3 s; 1e-2 rad/s of rocking
+#: is ~2 mrad of amplitude)
 REST_TOL = 1e-2
 #: the hold test after an at-rest segment: joints locked at their final values for
 #: ``duration`` s from the final state; the base pitch stays within ``pitch_tol`` rad of its
@@ -348,17 +350,31 @@ REST_TOL = 1e-2
 HOLD = dict(duration=1.0, pitch_tol=0.01, v_tol=REST_TOL)
 #: solve plan of the at-rest segments: after the pitch ramp (level 0), the terminal
 #: constraints (level 1) along (pitch tolerance rad, velocity tolerance m/s and rad/s,
-#: torque-limit factor)
-REST_RAMP = ((0.3, 1.0, 4.0), (0.1, 0.3, 2.5), (0.03, 0.1, 1.6), (0.01, 0.03, 1.2), (1e-3, REST_TOL, 1.0))
+#: acceleration tolerance m/s^2 and rad/s^2, torque-limit factor). The last stage is
+#: 20 % inside the success criteria (a solver's 1e-9 violation of a bound is not a
+#: criterion's failure); its acceleration bound keeps the rocking amplitude at the end
+#: (acceleration / omega^2, omega = 4.8 rad/s) below ~2 mrad
+REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), (0.01, 0.03, 0.15, 1.2),
+             (0.8e-3, 0.8 * REST_TOL, 0.04, 1.0))
+#: RK4 step (s) of every segment. The friction law's viscous slope at zero slip,
+#: 1.5 mu N / v_max (DESIGN.md), is the stiffest mode: standing on the foot (about 10 N
+#: per contact point) RK4 at 4 ms is past its stability limit for it and settles into a
+#: hidden fast oscillation of the foot's slip that biases the base velocities (measured:
+#: the pitch rate off by 0.035 rad/s at rest while the positions agree), at 3 ms and below
+#: the results agree with 0.25 ms to 5 digits. 2 ms leaves room for heavier loads.
+DT = 2e-3
+
+
 def _plan(pitch_ramp=(), rest_ramp=REST_RAMP):
     """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, then the
     ``rest_ramp`` (level 1) at the last pitch."""
     final = pitch_ramp[-1] if len(pitch_ramp) else 2 * np.pi
     return ([dict(params=dict(pitch=p), level=0) for p in pitch_ramp] +
-            [dict(params=dict(pitch=final, ptol=pt, vtol=v, tau_factor=f), level=1) for pt, v, f in rest_ramp])
+            [dict(params=dict(pitch=final, ptol=pt, vtol=v, atol=acc, tau_factor=f), level=1)
+             for pt, v, acc, f in rest_ramp])
 
 
-def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: float | None = None, q0=None,
+def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = DT, t_final: float | None = None, q0=None,
                     v0=None, model=None, shooting: int = 1, guess: str = "default"):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
 
@@ -382,7 +398,7 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = 4e-3, t_final: f
     if guess not in ("default", "bridge") or (guess == "bridge" and (name != "handstand" or shooting < 2)):
         raise ValueError(f"tumbler_segment: guess={guess!r} is not available for {name!r} with shooting={shooting} "
                          "(guesses: 'default'; 'bridge' for the handstand with shooting > 1)")
-    rest_params = {"ptol": REST_RAMP[-1][0], "vtol": REST_RAMP[-1][1], "tau_factor": 1.0}
+    rest_params = {"ptol": REST_RAMP[-1][0], "vtol": REST_RAMP[-1][1], "atol": REST_RAMP[-1][2], "tau_factor": 1.0}
     if name == "handstand":
         T = 2.0 if t_final is None else t_final
         q0 = start_q(model) if q0 is None else q0
@@ -480,7 +496,7 @@ def _criteria(name):
             {"type": "final_q", "joint": "shoulder", "target": ARMS_DOWN, "tol": 1e-6, "name": "arms down"}, *rest]
 
 
-def tumbler(n_ctrl: int = 12, dt: float = 4e-3):
+def tumbler(n_ctrl: int = 12, dt: float = DT):
     """The four-segment tumbler `MotionSequence` (see the module docstring)."""
     model = robots.tumbler(feet=True)
     segs = []

@@ -142,21 +142,24 @@ class TorqueLimits(Constraint):
 
 class TerminalState(Constraint):
     """Final state of joint ``joint``: position ``q`` (a free joint's (7,) pose, error on
-    the manifold) and/or velocity ``v``. ``kind="eq"`` (default): ``q(T) = q``, ``v(T) =
-    v``. ``kind="ineq"`` with ``tol``: ``|error| <= tol`` componentwise. ``which``
-    selects the parts (``"q"``, ``"v"`` or ``"qv"``; default: those given). Values may
-    name problem parameters."""
+    the manifold), velocity ``v`` and/or acceleration ``a`` (the joint's ``nv`` entries of
+    the trajectory's ``a`` at ``t_final``: for a passive joint, what the dynamics gives at
+    the final state; ``a=0`` with ``v=0`` asks for a state of rest *at equilibrium*, one
+    the robot keeps, not one it passes through). ``kind="eq"`` (default): ``q(T) = q``,
+    ``v(T) = v``, ``a(T) = a``. ``kind="ineq"`` with ``tol``: ``|error| <= tol``
+    componentwise. Values (and ``tol``) may name problem parameters. Order of the values:
+    position, velocity, acceleration parts (those given)."""
 
-    def __init__(self, joint, q=None, v=None, kind="eq", tol=0.0, stage=0, name=None):
-        self.joint, self.q, self.v, self.tol = joint, q, v, tol
+    def __init__(self, joint, q=None, v=None, a=None, kind="eq", tol=0.0, stage=0, name=None):
+        self.joint, self.q, self.v, self.a, self.tol = joint, q, v, a, tol
         _set_common(self, kind, stage, name)
 
     def check(self, problem):
         if self.joint not in problem.model.joint_names:
             raise ProblemError(f"TerminalState: no joint named {self.joint!r}; joints are "
                                f"{list(problem.model.joint_names)}")
-        if self.q is None and self.v is None:
-            raise ProblemError(f"TerminalState({self.joint!r}): give q and/or v")
+        if self.q is None and self.v is None and self.a is None:
+            raise ProblemError(f"TerminalState({self.joint!r}): give q, v and/or a")
 
     def values(self, ctx, end, samples):
         m = ctx.model
@@ -166,6 +169,8 @@ class TerminalState(Constraint):
                                     resolve(self.q, ctx.params).reshape(-1)))
         if self.v is not None:
             errs.append(end["v"][m.joint_v(self.joint)] - resolve(self.v, ctx.params).reshape(-1))
+        if self.a is not None:
+            errs.append(end["a"][m.joint_v(self.joint)] - resolve(self.a, ctx.params).reshape(-1))
         e = jnp.concatenate(errs)
         if self.kind == "eq":
             return e
@@ -176,8 +181,11 @@ class TerminalState(Constraint):
         return self.name or f"TerminalState({self.joint})"
 
     def describe(self):
-        return {"type": "TerminalState", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
-                "kind": self.kind, "stage": self.stage}
+        d = {"type": "TerminalState", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
+             "kind": self.kind, "stage": self.stage}
+        if self.a is not None:  # only when used: problem hashes of earlier problems stay the same
+            d["a"] = _jsonable(self.a)
+        return d
 
 
 class ContactDistance(Constraint):

@@ -119,10 +119,36 @@ def test_default_guess_stays_on_its_feet(model, name, pitch):
     assert float(np.min(np.asarray(tr["contact"].d))) > -0.01
 
 
+def _check_segment_solve(name, **kw):
+    from cstorm import report
+
+    p = T.tumbler_segment(name, **kw)
+    sol = cs.solve(p)
+    assert sol.success, sol.message
+    crit = report.evaluate_criteria(p.success_criteria, p.model, sol) if name == "roll" else p.success_criteria(sol)
+    assert all(c["ok"] for c in crit.values()), crit
+    fid = report.fidelity(p, sol)
+    assert fid["ok"], fid["flags"]
+    return p, sol, crit, fid
+
+
+def test_start_segment_solves_and_holds_still():
+    """`cstorm solve tumbler --segment start` (standing, arms overhead -> arms down, at
+    rest) from the default guess: the solve plan converges, every success criterion holds
+    (pitch within 0.05 rad of upright, base velocities and accelerations at rest, and the
+    `HOLD` test: 1 s with the joints locked, the pitch moves < 0.01 rad), and the motion
+    re-simulated at dt/4 and with DOP853 ends where the plan does. Measured: 78 SLSQP
+    iterations, ~45-55 s with compile on 2 cores; hold deviation 3.9 mrad."""
+    p, sol, crit, fid = _check_segment_solve("start")
+    assert crit["holds still"]["value"] < T.HOLD["pitch_tol"]
+    # the velocities of the plan are the dynamics' (not an artefact of the step; DESIGN:
+    # the friction's viscous mode is what limits dt)
+    assert fid["velocity_m_s"] < 1e-3 and fid["angular_velocity_deg_s"] < 0.1, fid
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
-    pytest.param("start", marks=pytest.mark.xfail(reason="not solved yet (see the tumbler module docstring, "
-                                                          "Status)", strict=False)),
+    "roll",
     pytest.param("handstand", marks=pytest.mark.xfail(reason="not solved yet (see the tumbler module docstring, "
                                                               "Status)", strict=False)),
 ])
@@ -130,15 +156,7 @@ def test_segment_solve_meets_criteria(name):
     """`cstorm solve tumbler --segment NAME` from the segment's nominal start: the solve
     plan converges from the default guess, every success criterion and the fidelity
     check hold."""
-    from cstorm import report
-
-    p = T.tumbler_segment(name)
-    sol = cs.solve(p)
-    assert sol.success, sol.message
-    crit = report.evaluate_criteria(p.success_criteria, p.model, sol)
-    assert all(c["ok"] for c in crit.values()), crit
-    fid = report.fidelity(p, sol)
-    assert fid["ok"], fid["flags"]
+    _check_segment_solve(name)
 
 
 def test_bridge_guess_keeps_feet_then_hands_on_the_floor(model):

@@ -365,12 +365,14 @@ REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), 
 DT = 2e-3
 
 
-def _plan(pitch_ramp=(), rest_ramp=REST_RAMP):
+def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None):
     """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, then the
-    ``rest_ramp`` (level 1) at the last pitch."""
+    ``rest_ramp`` (level 1) at the last pitch, each of its stages within a box of
+    ``rest_trust`` rad around where it starts (None: the problem's own trust region)."""
     final = pitch_ramp[-1] if len(pitch_ramp) else 2 * np.pi
+    tr = {} if rest_trust is None else dict(trust_region=rest_trust)
     return ([dict(params=dict(pitch=p), level=0) for p in pitch_ramp] +
-            [dict(params=dict(pitch=final, ptol=pt, vtol=v, atol=acc, tau_factor=f), level=1)
+            [dict(params=dict(pitch=final, ptol=pt, vtol=v, atol=acc, tau_factor=f), level=1, **tr)
              for pt, v, acc, f in rest_ramp])
 
 

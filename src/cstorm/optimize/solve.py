@@ -146,7 +146,11 @@ def _plan(problem, continuation, schedule):
     levels = problem.n_levels
     if schedule is not None:
         plan = []
-        for s in schedule:
+        for i, s in enumerate(schedule):
+            bad = set(s) - {"params", "level", "trust_region"}
+            if bad:
+                raise InputError(f"solve: schedule stage {i} has unknown keys {sorted(bad)} (known: params, level, "
+                                 "trust_region)")
             plan.append((dict(s.get("params", {})), s.get("level", levels - 1)))
         return plan
     if continuation:
@@ -187,7 +191,8 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
         stage but the last only warm-starts the next: ``problem.solve_options`` may set
         ``"intermediate_tol"`` and ``"intermediate_max_iter"`` to loosen them (default:
         ``tol`` and ``max_iter``).
-      schedule: explicit plan ``[{"params": {...}, "level": k}, ...]``.
+      schedule: explicit plan ``[{"params": {...}, "level": k}, ...]``; a stage may also
+        set ``"trust_region"`` (its own box radius, see ``solve_options["trust_region"]``).
       max_iter: iteration limit per stage. tol: optimality tolerance (SLSQP ``ftol``,
         IPOPT ``tol``). constraint_tol: largest constraint violation counted as success.
       verbose: print one line per iteration (iteration, stage, cost, violation, step,
@@ -275,7 +280,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
         ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
-        ev.bounds = _stage_bounds(problem, x)
+        ev.bounds = _stage_bounds(problem, x, schedule[si].get("trust_region") if schedule is not None else None)
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
             # intermediate stages only warm-start the next one: the problem may loosen them
@@ -404,15 +409,17 @@ def variable_bounds(problem):
     return lb, ub
 
 
-def _stage_bounds(problem, x):
+def _stage_bounds(problem, x, r=None):
     """The variable bounds of one stage that starts at ``x``: `variable_bounds`, and with
-    ``problem.solve_options["trust_region"] = r`` (same units as ``x``; a number or one
-    radius per variable, e.g. smaller for multiple-shooting nodes of a body resting on a
-    stiff contact) also within ``r`` of ``x`` (a box trust region per stage that moves with the solve: SLSQP's linearized
-    constraints otherwise throw a warm start radians away; a continuation plan can still
-    travel far, ``r`` per stage). ``x`` is first moved into the bounds."""
+    a trust radius ``r`` (``problem.solve_options["trust_region"]`` unless given, e.g. by
+    a schedule stage's ``"trust_region"``; same units as ``x``; a number or one radius
+    per variable, e.g. smaller for multiple-shooting nodes of a body resting on a stiff
+    contact) also within ``r`` of ``x`` (a box trust region per stage that moves with the
+    solve: SLSQP's linearized constraints otherwise throw a warm start radians away; a
+    continuation plan can still travel far, ``r`` per stage). ``x`` is first moved into
+    the bounds."""
     lb, ub = variable_bounds(problem)
-    r = problem.solve_options.get("trust_region")
+    r = problem.solve_options.get("trust_region") if r is None else r
     if r is None:
         return lb, ub
     xc = _clip_into(np.asarray(x, float), lb, ub)

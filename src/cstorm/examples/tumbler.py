@@ -25,7 +25,7 @@ hands and feet on a mat; at the draft's 0.3 the feet slide during the pike),
 springs of the three level contact points carry its weight, 5.5 mm above the ground;
 the nominal postures below are placed at that height.
 
-Segments (each ``T`` seconds, RK4 at ``dt`` = 4 ms, quintic B-splines with ``n_ctrl`` =
+Segments (each ``T`` seconds, RK4 at ``dt`` = 2 ms (`DT`), quintic B-splines with ``n_ctrl`` =
 12 control points per active joint, start position/velocity from the previous segment
 by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
 
@@ -65,92 +65,34 @@ rollouts: standing on the compliant foot is only marginally stable (the foot's
 rotational contact stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging
 the arms without it tips the robot onto its face.
 
-Status (measured on the shared 2-core machine, load 3-10, ~1-17 s per SLSQP iteration)
--------------------------------------------------------------------------------------
-**Not solved yet: no segment meets its criteria.** What was measured:
+Status (measured on a 2-core machine, RK4 at 2 ms, load 1-3)
+-------------------------------------------------------------
+- ``start`` (standing, arms overhead -> arms down, at rest): **solved** from the default
+  guess by the plan above: 78 SLSQP iterations, 43-54 s including a 15 s compile, cost
+  0.1551 N^2 m^2 s, violation 3e-9; every criterion holds (pitch 3.1 mrad from upright,
+  base rates <= 8e-3, hold test: the pitch moves 3.9 mrad in 1 s, speeds 4e-4 after it);
+  fidelity 1.6e-10 m / 4e-7 deg (velocities 1.2e-7 m/s, 3e-4 deg/s) at dt/4 and with
+  DOP853. CI solves it (tests/test_tumbler.py).
+- ``roll`` (from the nominal handstand): **solved**: 140 iterations, 66 s, cost 4.345,
+  violation 0; it ends lying on its back at pitch 4.73 (torso centre 4.6 cm up) rolling
+  at 1.0 rad/s; fidelity 0.1 mm / 3e-4 deg.
+- ``handstand``: not solved. The pitch continuation reaches pi (about 340 iterations;
+  the 0.6 and 1.8 stages hit their 60-iteration limits: 1.4 -> 1.8 is where the legs
+  must go up over the hands), then the rest ramp's SLSQP steps of 3-6 rad left the
+  violation at 7-18 (torque factor 2.5, accelerations 1.5); the cost at pitch pi with
+  the torque limits relaxed 4x is ~66 N^2 m^2 s, a violent motion for 12 / 8 N m
+  motors. Rest stages boxed to 0.2 rad per stage (``_plan(rest_trust=0.2)``) and multiple
+  shooting (K = 4: diverged at pitch 1.8) were being tried when this was written.
+- ``standing`` (from the roll's end): not solved: the terminal pitch equality (2 pi from
+  4.73 rad lying on the back) stalls at violation 1.58 from the default guess (joints
+  linear to straight); it needs a guess that tucks the legs under the body.
 
-- ``start`` (standing -> arms down), the plan above from the default guess. With a
-  final velocity tolerance of 1e-4 (``cstorm solve tumbler --segment start``, output
-  kept in ``cstorm-out/tumbler-start-unsolved``): 148 SLSQP iterations, 753 s (compile
-  40 s); stages 1-4 converged, the 1e-3 stage hit its 25-iteration limit, the last
-  stopped ("positive directional derivative") at violation 2.2e-2, cost 0.444. The
-  motion is plausible (looked at: arms swing forward and down, the hip leans back,
-  the robot stays on its foot, heel nearly unloaded at 0.7 s, contact points 3.5-9 mm
-  above the floor, no penetration; pitch 0.012 rad from upright; fidelity 0.14 mm /
-  0.025 deg at dt/4 and DOP853) but it still rocks at T (pitch rate 0.023 rad/s, x rate
-  8 mm/s against 1e-3). Rerun with the shipped final tolerance 5e-4 and 60 iterations
-  per intermediate stage: stages 1-4 converged again (92 iterations, 255 s), then the
-  1e-3 stage sat at violation 9.7e-2 with zero steps (the 0.05 rad box around the
-  stage's start leaves its constraints out of reach) and the last stage cycled at
-  violation 0.13-0.93 (336 iterations in 30 min, stopped). Without the trust region
-  (or with 0.3 rad) SLSQP's steps tip the robot over within 10 iterations. A trust
-  radius that grows in the last stages is the next thing to try.
-- ``handstand``: every guess tried ends in one of two dead ends for single shooting.
-  (a) Guesses that put the robot on the floor at T (a pike onto the hands with arms
-  reaching down: it reaches pitch 1.9-2.15 on hands and feet, then lies down face
-  first, pitch 1.59; a keyframe "kick" that tips over the hands and lands on the back,
-  pitch 4.70) leave the terminal pitch without gradient: SLSQP stalls at violation
-  1.25-1.5 with or without a path penalty guiding the pitch towards pi (a local
-  minimum in a pike bridge at pitch 2.15), and a terminal penalty instead of the
-  constraint changes nothing. (b) From the "stand still" guess the terminal-pitch
-  continuation (the feasibility study's recipe; session 2 reached pitch pi with it
-  from an arms-raised start in ~320 iterations) flails in its first stage (pitch 0.3):
-  SLSQP's steps of 0.1-0.5 rad flip the robot between falling forwards and backwards
-  (violation 0.03 -> 1.7) within ~35 iterations; not run to the end for lack of time.
-  Box trust regions of 0.5 rad (fixed around the guess or per stage) did not change
-  either picture.
-- ``roll`` and ``standing``: not run (the roll needs the handstand's end state in the
-  sequence; ``--segment roll`` starts from the nominal handstand).
-
-Session 5 (multiple shooting, `MotionProblem(shooting=K)`; load 3-4):
-
-- ``start`` with K = 4 (the plan above): stages 1-5 (base velocities to 1e-2) in 8
-  SLSQP iterations and 75 s including compile (single shooting needed dozens), then the
-  1e-3 stage cycled (violation 0.04-0.4) to its 60-iteration limit and the last stage
-  sat at 0.27. K = 10: the same, stage 5 already erratic. K = 5 with per-variable trust
-  radii (spline 0.05 rad, node positions 3 mm, node velocities 0.03): stalled in stage
-  4 at violation 3e-2. IPOPT, K = 4, no trust region: wandered to cheaper but
-  infeasible motions (cost 0.18-0.26, violation 1e-3 .. 8e-3), stage 1 hit its
-  iteration limit. Single shooting with the foot kept flat (`FootFlat`): stages 1-5 in
-  46 iterations (0.4 s each), then the same cycling, one trial step tipping the robot
-  over (violation 4.9). Contact damping 300 N s/m instead of 100: the first stage
-  already tipped over (violation 1.8 after a 0.07 rad step).
-  *Measured cause*: at the best single-shooting iterate the Jacobian of the terminal
-  base velocities has singular values 7.2, 0.081 and 2.2e-4, and a step of 0.1 x the
-  Newton step for (x rate, pitch rate) (0.02 rad) moved the pitch rate from 0.0226 to
-  0.0011 where the linearization predicted 0.0203: the rest condition depends on the
-  controls far from linearly within the box that keeps the robot on its feet.
-- ``handstand`` with ``guess="bridge"`` (K = 10): the guess's shooting defects start at
-  ~4; SLSQP without a trust region stepped up to 8 rad and the violation grew to 12;
-  IPOPT grew it to ~30 (steps that put the body into the floor, where the stiff contact
-  makes intervals explode). A stage-wise box trust region cannot help here: the nodes
-  must move further than any box that keeps the contact tame.
-
-- ``trust-constr`` (scipy's trust-region SQP, `cstorm.solve`), ``start``, single shooting:
-  every stage hit its iteration limit (60; interior-point steps are slow to converge),
-  the cost fell to 0.24-0.27 and the violation stayed at 6e-3 .. 3e-2 through the 1e-3
-  stages (580 iterations, 640 s).
-- Criteria since then: "at rest" is base velocities within `REST_TOL` = 1e-2 plus the
-  `HOLD` test (1 s with the joints locked: pitch within 0.01 rad, speeds below 1e-2 at
-  the end), the plan ends at that tolerance. Rerun of ``start`` (K = 4, plan truncated
-  there): stages 1-4 in 6 iterations, then the 1e-2 stage cycled between violation 2e-3
-  and 5e-2 for 110+ iterations while the cost fell from 0.47 to 0.30 (an earlier K = 4 run
-  had converged that stage in 2 iterations at cost 0.47: the path SLSQP takes decides
-  it). Not solved. At iteration 35 of that stage the only violated constraint was the
-  terminal pitch rate (0.056 rad/s against 0.01; continuity defects 1.5e-3): the rocking
-  on the foot. A likely cause of the nonlinearity: heel or toe lift off near the end of
-  the force ramp (4.5 mm of margin at rest, a rocking of ~0.09 rad on the 0.05 m half
-  foot); a wider ramp (``d_off < 0``) or a longer foot would keep the support smooth.
-  A running cost on the base speed (weight 50, then ramped to 0) changed nothing
-  (stage 4 stalled at 3.7e-2).
-
-What to try next: a real trust-region SQP (radius adapted to the actual vs predicted
-reduction, not a fixed box per stage); the rest condition as a window (base velocities
-small over the last 0.2-0.3 s, which averages the rocking phase) or a longer final
-hold; more control points in the last half second; contact-implicit defects (node
-states projected onto the contact manifold) for the bridge guess; a wider or stiffer
-foot (standing is only marginally stable: the foot's rotational contact stiffness ~25 N
-m/rad against gravity's ~13 N m/rad).
+Why earlier sessions failed on ``start``: they planned at 4 ms, where the base velocities
+were biased by RK4's instability on the friction's viscous mode (see `DT`), so the rest
+conditions (1e-2 .. 1e-3) the optimizer chased were integration artefacts and no solver
+converged (their notes blamed the nonlinearity of rocking on the compliant foot; the
+measured Jacobian singular values 7.2 / 0.081 / 2.2e-4 of the terminal base velocities
+were of the artefact). At 2 ms the same plan converges in 78 iterations.
 """
 
 from __future__ import annotations

@@ -76,13 +76,35 @@ Status (measured on a 2-core machine, RK4 at 2 ms, load 1-3)
 - ``roll`` (from the nominal handstand): **solved**: 140 iterations, 66 s, cost 4.345,
   violation 0; it ends lying on its back at pitch 4.73 (torso centre 4.6 cm up) rolling
   at 1.0 rad/s; fidelity 0.1 mm / 3e-4 deg.
-- ``handstand``: not solved. The pitch continuation reaches pi (about 340 iterations;
-  the 0.6 and 1.8 stages hit their 60-iteration limits: 1.4 -> 1.8 is where the legs
-  must go up over the hands), then the rest ramp's SLSQP steps of 3-6 rad left the
-  violation at 7-18 (torque factor 2.5, accelerations 1.5); the cost at pitch pi with
-  the torque limits relaxed 4x is ~66 N^2 m^2 s, a violent motion for 12 / 8 N m
-  motors. Rest stages boxed to 0.2 rad per stage (``_plan(rest_trust=0.2)``) and multiple
-  shooting (K = 4: diverged at pitch 1.8) were being tried when this was written.
+- ``handstand``: not solved. Every plan tried at 2 ms fails at the same place: where
+  the weight must move from the feet onto the hands. Measured:
+  - the default plan: the pitch continuation reaches pi in about 340 iterations, but
+    the 0.6 and 1.8 stages hit their 60-iteration limits, and at 1.4 -> 1.8 the cost
+    jumps from 0.1 to ~29 N^2 m^2 s. A straight body at pitch 1.8 with its hands on the
+    floor has its feet 0.2 m up: a plank cannot be levered about the hands by an 8 N m
+    shoulder (the body's weight at 0.45 m needs ~11 N m), so only violent motions reach
+    these targets. The rest ramp after it left violations of 7-18 (SLSQP steps of 3-6
+    rad), and still 13 with each rest stage boxed to 0.2 rad;
+  - the torque limits enforced (factor 1) through the continuation: the same wall at
+    1.8, with the later stages at their iteration limits;
+  - the hands planted at T (palm within 1 cm of the floor) from pitch 1.5 or 1.7, with
+    a coarse or a fine (0.2 rad) ramp: the same wall;
+  - IPOPT with the default plan: its first stage hit the 60-iteration limit;
+  - ``guess="bridge"`` (K = 10, per-variable boxes spline 0.3 rad, node positions 0.1,
+    velocities 1.0): the pitch stage stalls at violation 1.7 ("positive directional
+    derivative");
+  - end posture as continuation parameters (end joints free, terminal equalities on
+    pitch, hip and shoulder), from a fold guess that rolls out into a pike bridge on
+    hands and feet (``(0.3 T: arms 1.4 rad), (0.7 T: hip -1.75, shoulder pi - 1.75)``):
+    the bridge at T converges (cost 26-40), but every step towards the handstand,
+    straight-line or along statically balanced press postures (the CoM over the hands,
+    arms vertical), hits its iteration limit at violation 0.4-2.9;
+  - physical targets at T (hands planted, CoM within 3 cm of the hands' x, the feet
+    ``fh`` above the hands, ``fh`` ramped from 0.02 m), from the same bridge guess: the
+    feet never leave the floor (CoM 0.18 m behind the hands at ``fh`` = 0.16).
+  The missing piece is a guess, or a move, that transfers the weight onto the hands (a
+  kick, or a pike press with the shoulders leaning past the hands); continuation on
+  terminal targets does not find it.
 - ``standing`` (from the roll's end): not solved: the terminal pitch equality (2 pi from
   4.73 rad lying on the back) stalls at violation 1.58 from the default guess (joints
   linear to straight); it needs a guess that tucks the legs under the body.

@@ -79,7 +79,7 @@ def cmd_demo(args):
     solve_args = argparse.Namespace(
         problem=viz_demo.DEMO_PROBLEM, out=out, segment=None, method=None, max_iter=None, tol=None,
         checkpoint=False, resume=False, set=[], guess=args.guess, no_animation=args.no_animation,
-        no_fidelity=args.no_fidelity, json=args.json, argv=args.argv)
+        no_fidelity=args.no_fidelity, no_step_check=False, json=args.json, argv=args.argv)
     return cmd_solve(solve_args)
 
 
@@ -140,9 +140,60 @@ def resolve_problem(spec: str, kwargs=None, segment=None):
 _PROBLEMS: dict = {}
 
 
+def _check_time_steps(problem, log):
+    """`cstorm.check_time_step` on every segment (along its initial guess), before
+    solving: a warning line on stderr (also under ``--json``) for each segment whose
+    step is past its integrator's stability limit. Returns the per-segment results
+    (recorded under ``time_step`` in summary.json; `_check_solution_steps` adds the
+    check along the solution). A check that fails with an error is recorded (``ok:
+    None``) and does not stop the solve. Cost: see `cstorm.stepcheck` (the
+    linearization compiles once per robot and contact structure, ~10 s for the tumbler
+    on a loaded 2-core machine; the guess's rollout at dt/4 is the fidelity check's,
+    compiled once)."""
+    from .report import problem_segments
+    from .stepcheck import check_time_step
+
+    out = []
+    for seg in problem_segments(problem):
+        try:
+            r = check_time_step(seg)
+        except Exception as e:  # the check must not stop a solve; say why it did not run
+            r = dict(ok=None, dt=float(seg.dt), integrator=seg.integrator, dt_limit=None,
+                     message=f"time-step check failed: {type(e).__name__}: {e}")
+        if r.get("ok") is False or r.get("ok") is None:
+            print(f"cstorm solve: warning: {seg.name}: the initial guess: {r['message']}", file=sys.stderr)
+        else:
+            log(f"time step ({seg.name}): {r['message']}")
+        out.append(r)
+    return out
+
+
+def _check_solution_steps(problem, sol, time_step):
+    """After a solve: the check along each segment's solution (its controls rolled out at
+    dt/4 from its start), stored as ``"solution"`` in that segment's entry of
+    ``time_step``; a warning line on stderr where not ok. Cheap: the linearization and
+    the rollout are compiled by then."""
+    from .report import problem_segments, segment_solutions
+    from .stepcheck import check_time_step
+
+    for seg, s, r in zip(problem_segments(problem), segment_solutions(sol), time_step):
+        try:
+            rs = check_time_step(seg, along=s)
+        except Exception as e:  # recorded, not fatal
+            rs = dict(ok=None, dt=float(seg.dt), integrator=seg.integrator, dt_limit=None,
+                      message=f"time-step check of the solution failed: {type(e).__name__}: {e}")
+        if rs.get("ok") is not True:
+            print(f"cstorm solve: warning: {seg.name}: the solution: {rs['message']}", file=sys.stderr)
+        r["solution"] = rs
+
+
 def cmd_solve(args):
     """Solve a shipped example or a TOML problem file; write summary.json, solution.npz,
-    trajectory.csv, plots and an animation (see `cstorm.report.write_outputs`)."""
+    trajectory.csv, plots and an animation (see `cstorm.report.write_outputs`). Before
+    solving, checks every segment's time step against its integrator's stability limit
+    along its initial guess (`cstorm.check_time_step`; ``--no-step-check`` skips it),
+    and after solving along the solution: a warning on stderr when past it, the results
+    under ``time_step`` in summary.json."""
     import cstorm as cs
     from .errors import InputError
     from .optimize.sequence import MotionSequence
@@ -168,6 +219,7 @@ def cmd_solve(args):
     log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     log(f"cstorm solve {args.problem}" + (f" --segment {args.segment}" if args.segment else "") +
         f": {problem!r}; method {method}, max_iter {max_iter}; output {out}")
+    time_step = None if getattr(args, "no_step_check", False) else _check_time_steps(problem, log)
     if args.guess:
         from .report import solution_at
 
@@ -177,9 +229,12 @@ def cmd_solve(args):
         sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not args.json, out=sys.stderr,
                        checkpoint=os.path.join(out, "checkpoint.npz") if args.checkpoint else None, **kw)
         log(f"solved in {sol.wall_time_s:.1f} s (compile {sol.compile_time_s:.1f} s): {sol.message}")
+    if time_step is not None and not args.guess:
+        _check_solution_steps(problem, sol, time_step)
     summary = write_outputs(problem, sol, out, source=source, check_fidelity=not args.no_fidelity,
                             animation=not args.no_animation,
-                            extra_provenance=dict(command=["cstorm"] + list(args.argv or [])), log=log)
+                            extra_provenance=dict(command=["cstorm"] + list(args.argv or [])), log=log,
+                            time_step=time_step)
     summary["out"] = os.path.abspath(out)
     if args.json:
         print(json.dumps(summary))
@@ -313,6 +368,9 @@ def build_parser():
                          "constraint violation are not evaluated (exit code 1)")
     ps.add_argument("--no-animation", action="store_true", help="skip the animation")
     ps.add_argument("--no-fidelity", action="store_true", help="skip the re-simulation fidelity check")
+    ps.add_argument("--no-step-check", action="store_true",
+                    help="skip the check of dt against the integrator's stability limit (cstorm.check_time_step), "
+                         "run along the initial guess before solving and along the solution after")
     ps.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")
     ps.set_defaults(fn=cmd_solve)
     pa = sub.add_parser("animate", help="re-render plots and the animation of a saved solution")

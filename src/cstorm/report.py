@@ -761,11 +761,20 @@ _FIELDS = ("problem", "success", "message", "cost", "constraint_violation", "ite
 
 
 def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_segment_criteria=None,
-                 source=None, extra_provenance=None) -> dict:
+                 source=None, extra_provenance=None, time_step=None) -> dict:
     """The ``summary.json`` dict: ``problem, success, solver_success, message, cost,
     constraint_violation, iterations, wall_time_s, compile_time_s, criteria, fidelity,
     segments`` (the same fields per segment) and ``provenance`` (cstorm version, problem
-    hash, solver options, success criteria, source)."""
+    hash, solver options, success criteria, source).
+
+    ``time_step`` (optional): the `cstorm.check_time_step` result of each segment (a
+    list, or one dict for a single problem). When given, every entry of ``segments``
+    carries its own under ``"time_step"`` and the summary has ``"time_step"``: the dict
+    itself for a single problem; for a sequence ``{"ok", "dt_limit", "message",
+    "segments": [{"segment": name, ...}]}`` (``ok``: False if any segment's is, True if
+    all are, else None; ``dt_limit``: the smallest; ``solution_ok`` likewise over the
+    entries' ``"solution"`` checks, when ``cstorm solve`` added them). It does not enter
+    ``success``."""
     from . import __version__
 
     segs, sols = problem_segments(problem), segment_solutions(solution)
@@ -791,6 +800,26 @@ def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_
                              compile_time_s=float(s.compile_time_s), n_evaluations=int(s.n_evaluations),
                              t_final=float(np.asarray(s.trajectory["t"])[-1]), criteria=ck,
                              fidelity=seg_fid[k] if k < len(seg_fid) else None))
+    ts_top = None
+    if time_step is not None:
+        ts = list(time_step) if isinstance(time_step, (list, tuple)) else [time_step]
+        for k, seg in enumerate(segments):
+            seg["time_step"] = ts[k] if k < len(ts) else None
+        if len(segs) == 1 and segs[0] is problem:
+            ts_top = ts[0] if ts else None
+        else:
+            def verdict(rs):
+                oks = [(r or {}).get("ok") for r in rs]
+                return False if False in oks else (True if oks and all(o is True for o in oks) else None)
+
+            lims = [r["dt_limit"] for r in ts if r and r.get("dt_limit") is not None]
+            bad = [f"{p.name}: {r['message']}" for p, r in zip(segs, ts) if r and r.get("ok") is False]
+            ts_top = dict(ok=verdict(ts), dt_limit=min(lims) if lims else None,
+                          message="; ".join(bad) if bad else "every segment's time step is inside its integrator's "
+                                                                 "stability limit",
+                          segments=[dict(segment=p.name, **(r or {})) for p, r in zip(segs, ts)])
+            if any(r and "solution" in r for r in ts):
+                ts_top["solution_ok"] = verdict([(r or {}).get("solution") for r in ts])
     message = solution.message
     if solution.success and not crit_ok:
         failed = [k for k, v in criteria.items() if not v.get("ok", False)]
@@ -811,13 +840,16 @@ def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_
     except Exception:  # pragma: no cover
         pass
     prov.update(extra_provenance or {})
-    return _strict(dict(problem=solution.problem or problem.name, success=bool(solution.success and crit_ok),
-                        solver_success=bool(solution.success), message=message, cost=float(solution.cost),
-                        constraint_violation=float(solution.constraint_violation),
-                        iterations=int(solution.iterations), wall_time_s=float(solution.wall_time_s),
-                        compile_time_s=float(solution.compile_time_s), n_evaluations=int(solution.n_evaluations),
-                        t_final=float(np.asarray(solution.trajectory["t"])[-1]), criteria=criteria,
-                        fidelity=fidelity_report, segments=segments, provenance=prov))
+    out = dict(problem=solution.problem or problem.name, success=bool(solution.success and crit_ok),
+               solver_success=bool(solution.success), message=message, cost=float(solution.cost),
+               constraint_violation=float(solution.constraint_violation),
+               iterations=int(solution.iterations), wall_time_s=float(solution.wall_time_s),
+               compile_time_s=float(solution.compile_time_s), n_evaluations=int(solution.n_evaluations),
+               t_final=float(np.asarray(solution.trajectory["t"])[-1]), criteria=criteria,
+               fidelity=fidelity_report, segments=segments, provenance=prov)
+    if time_step is not None:
+        out["time_step"] = ts_top
+    return _strict(out)
 
 
 def _describe_criteria(problem):
@@ -882,7 +914,8 @@ def write_csv(path, motion) -> str:
 # Everything at once
 # ---------------------------------------------------------------------------------------
 def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=True, plots=True, animation=True,
-                  save_solution=True, fidelity_report=None, extra_provenance=None, mp4=True, log=None) -> dict:
+                  save_solution=True, fidelity_report=None, extra_provenance=None, mp4=True, log=None,
+                  time_step=None) -> dict:
     """Write ``out_dir/``: ``solution.npz``, ``trajectory.csv``, the PNG plots
     (``joints.png``, ``torques.png``, ``contacts.png`` when there is contact,
     ``paths.png``), ``animation.gif`` (and ``animation.mp4`` if ffmpeg is on PATH) and,
@@ -892,7 +925,9 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
     The solution is saved first (a failure later loses no solve); a fidelity check or
     a picture that fails (or a Ctrl-C during the fidelity check) is recorded in the
     summary's ``warnings`` (and the fidelity as not ok) instead of losing the other
-    files. Returns the summary dict (with ``files``: the names written)."""
+    files. ``time_step``: per-segment `cstorm.check_time_step` results to record (see
+    `make_summary`; a segment whose step is not ok also adds a ``warnings`` entry).
+    Returns the summary dict (with ``files``: the names written)."""
     from .viz.motion import Motion
 
     os.makedirs(out_dir, exist_ok=True)
@@ -917,7 +952,17 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
             warnings_.append(f"fidelity check failed: {type(e).__name__}: {e}")
     criteria, per_seg = all_criteria(problem, solution)
     summary = make_summary(problem, solution, fidelity_report=fidelity_report, criteria=criteria,
-                           per_segment_criteria=per_seg, source=source, extra_provenance=extra_provenance)
+                           per_segment_criteria=per_seg, source=source, extra_provenance=extra_provenance,
+                           time_step=time_step)
+    if time_step is not None:
+        ts = list(time_step) if isinstance(time_step, (list, tuple)) else [time_step]
+        names = [p.name for p in problem_segments(problem)]
+        for n, r in zip(names, ts):
+            pre = f"time step ({n})" if len(ts) > 1 else "time step"
+            if r and r.get("ok") is False:
+                warnings_.append(f"{pre}: the initial guess: {r['message']}")
+            if r and (r.get("solution") or {}).get("ok") is False:
+                warnings_.append(f"{pre}: the solution: {r['solution']['message']}")
     solution.info = dict(solution.info or {}, provenance=summary["provenance"], criteria=criteria,
                          fidelity=fidelity_report)
     if save_solution:

@@ -105,6 +105,19 @@ Status (measured on a 2-core machine, RK4 at 2 ms, load 1-3)
   The missing piece is a guess, or a move, that transfers the weight onto the hands (a
   kick, or a pike press with the shoulders leaning past the hands); continuation on
   terminal targets does not find it.
+  **Closest so far** (the end of session 6, not yet the default): a scan of 324
+  keyframe guesses (rolled out with the control points inside the joint limits) found
+  a kick, ``((0.35 T: hip -1.2, shoulder 2.0), (0.8 T: hip 0, shoulder -0.5))``, whose
+  rollout passes through a handstand at T (pitch pi + 0.18, torso at the handstand
+  height, tipping at 0.67 rad/s). From it, pitch pi directly (no pitch ramp), then a finer
+  rest ramp ``(ptol, vtol, atol, tau factor) = (0.3, 1, 5, 4), (0.1, 0.3, 1.5, 2.5),
+  (0.03, 0.1, 0.5, 1.6), (0.02, 0.06, 0.3, 1.4), (0.01, 0.03, 0.15, 1.2), (0.005, 0.015,
+  0.08, 1.1), (8e-4, 8e-3, 0.04, 1.0)`` with every rest stage boxed to 0.1 rad: six
+  stages converge (cost 8.5 N^2 m^2 s, against ~66 from the pitch continuation), down to
+  base rates of 0.03 with torques within 1.2x the limits. The 1.1x stage then stalls at
+  violation 0.05-0.5: the shoulder needs 13.5 N m there, and the pitch rate is 0.057.
+  The same run with a 10 N m shoulder also stalls at 1.1x and diverges in the last
+  stage. Next: more control points late in the motion, or a longer balance phase before T.
 - ``standing`` (from `ROLL_END`, the roll's end): **solved** from `STANDING_KEYFRAMES`
   (legs swung forward and down while the arms swing back, then straightened): 276
   iterations, 129 s including a 15 s compile, cost 13.19, violation 6e-9, every criterion

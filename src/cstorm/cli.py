@@ -14,10 +14,15 @@ import time
 
 
 def _setup_jax():
+    """float64, and JAX's persistent compilation cache in ``$CSTORM_JAX_CACHE`` (default
+    ``~/.cache/cstorm/jax``; an empty value turns it off). A cache directory configured
+    already (by a host program or the test-suite) is left as it is."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
     cache = os.environ.get("CSTORM_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "cstorm", "jax"))
+    if not cache or jax.config.jax_compilation_cache_dir:
+        return
     try:
         jax.config.update("jax_compilation_cache_dir", cache)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

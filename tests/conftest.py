@@ -1,5 +1,8 @@
+import gc
 import os
 import sys
+
+import pytest
 
 import jax
 
@@ -14,3 +17,14 @@ if _cache:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 sys.path.insert(0, os.path.dirname(__file__))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_code():
+    """Drop JAX's compiled executables after each test module. On CPU each executable
+    holds memory mappings (~5,000 for one tumbler problem); a worker that keeps every
+    module's code passes Linux's vm.max_map_count (65,530) late in the suite, and XLA's
+    compiler then segfaults (CI, stop 12; see cstorm.mapguard)."""
+    yield
+    jax.clear_caches()
+    gc.collect()

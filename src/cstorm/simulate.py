@@ -489,6 +489,9 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
     Returns:
       `Trajectory`. Raises `DivergenceError` if the rollout diverges.
     """
+    from .mapguard import relieve_map_pressure
+
+    relieve_map_pressure(where="simulate")
     layout = RolloutLayout.make(model, active)
     N, h, t = time_grid(t_final, dt)
     q0 = jnp.asarray(q0, dtype=jnp.float64 if jax.config.jax_enable_x64 else None)

@@ -403,6 +403,9 @@ def check_time_step(problem, q=None, v=None, *, integrator=None, dt=None, along=
                     amplification=None, dof=None, dof_shares={}, t=None, where="no passive DoFs", n_states=0,
                     n_unstable=0, unstable_s=None, eigenvalues=[], rollout=None,
                     message="no passive DoFs: nothing to check", wall_time_s=time.perf_counter() - t0)
+    from .mapguard import relieve_map_pressure
+
+    relieve_map_pressure(where="check_time_step")
     states, where, rollout, spacing = _states(problem, q, v, along, n_states)
     names = _passive_names(m, lay)
     best = None   # ((dt_limit, -max |lambda|), state index, modes, limiting mode)

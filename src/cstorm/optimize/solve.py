@@ -231,6 +231,9 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
 def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, schedule=None, max_iter=500, tol=1e-8,
                    constraint_tol=1e-6, verbose=False, callback=None, checkpoint=None, resume=None, options=None,
                    out=None, q0=None, v0=None, objective_scale="auto"):
+    from ..mapguard import relieve_map_pressure
+
+    relieve_map_pressure(where="solve")
     method = method.lower()
     if method not in METHODS:
         raise InputError(f"solve: method must be one of {list(METHODS)}, got {method!r}")

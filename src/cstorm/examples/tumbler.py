@@ -29,16 +29,16 @@ Segments (each ``T`` seconds, RK4 at ``dt`` = 2 ms (`DT`), quintic B-splines wit
 12 control points per active joint, start position/velocity from the previous segment
 by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
 
-1. ``handstand`` (2.0 s): from the start position (standing at rest, arms down) to a
-   balanced handstand at rest: pitch = pi, hip = shoulder = 0 (body straight, arms
-   overhead on the ground), base at rest (the joints' end values and rest are built
-   into their splines). Plan: continuation on the terminal pitch (equality, level 0:
-   `HANDSTAND_PITCH_RAMP` 0.15 ... pi, stages solved to 1e-4 in <= 60 iterations), then
-   `REST_RAMP` (level 1): base velocities within ``vtol`` and torque limits scaled by
-   ``tau_factor``, tightened together from (1 m/s or rad/s, 4x the limits) to (5e-4,
-   1x) in 7 stages (switching every rest constraint on at once stalled in session 2).
-   Guess `HANDSTAND_KEYFRAMES`: raise the arms while the hip counterbalances, then
-   stand (the "stand still" guess of the feasibility study's recipe).
+1. ``handstand`` (`HANDSTAND_T` = 2.5 s, `HANDSTAND_N_CTRL` = 15 control points): from
+   the start position (standing at rest, arms down) to a balanced handstand at rest:
+   pitch = pi, hip = shoulder = 0 (body straight, arms overhead on the ground), base at
+   rest (the joints' end values and rest are built into their splines). Plan: the
+   terminal pitch at pi (equality, level 0) from the first stage, then
+   `HANDSTAND_REST_RAMP` (level 1): base velocities within ``vtol``, accelerations within
+   ``atol``, the pitch within ``ptol`` and torque limits scaled by ``tau_factor``,
+   tightened together from (1 m/s or rad/s, 4x the limits) to (8e-3, 1x) in 7 stages,
+   each boxed to `HANDSTAND_REST_TRUST` = 0.1 rad around where it starts. Guess
+   `HANDSTAND_KEYFRAMES`: a kick whose rollout passes through a handstand at 2.0 s.
 2. ``roll`` (1.5 s): from the handstand, tip over forward and roll along the back:
    at the end the torso lies on the ground (its centre lower than 0.1 m) with pitch
    >= 3 pi / 2 - 0.2 and still rotating forwards (pitch rate >= 1 rad/s), joints
@@ -46,8 +46,8 @@ by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
    `ROLL_KEYFRAMES` (rolled out from the nominal handstand it tips forward and lands on
    its back, pitch 4.76, but stops: pitch rate -0.3 rad/s at T).
 3. ``standing`` (2.0 s): from the roll, come up onto the feet: pitch = 2 pi,
-   hip = shoulder = 0, base at rest; the handstand's rest plan without a pitch ramp.
-   Guess: the default (joints linear to straight).
+   hip = shoulder = 0, base at rest. Plan: the terminal pitch at 2 pi (level 0), then
+   `REST_RAMP` (level 1), each stage boxed to 0.2 rad. Guess `STANDING_KEYFRAMES`.
 4. ``start`` (2.0 s): from standing (arms overhead) back to the start position: pitch =
    2 pi within 0.05 rad, hip = 0, shoulder = 3.0 (arms down), base at rest. Plan:
    `REST_RAMP` only, with a per-stage trust region of 0.05 rad
@@ -65,8 +65,8 @@ rollouts: standing on the compliant foot is only marginally stable (the foot's
 rotational contact stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging
 the arms without it tips the robot onto its face.
 
-Status (measured on a 2-core machine, RK4 at 2 ms, load 1-3)
--------------------------------------------------------------
+Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
+------------------------------------------------------------------------
 - ``start`` (standing, arms overhead -> arms down, at rest): **solved** from the default
   guess by the plan above: 78 SLSQP iterations, 43-54 s including a 15 s compile, cost
   0.1551 N^2 m^2 s, violation 3e-9; every criterion holds (pitch 3.1 mrad from upright,
@@ -76,48 +76,34 @@ Status (measured on a 2-core machine, RK4 at 2 ms, load 1-3)
 - ``roll`` (from the nominal handstand): **solved**: 140 iterations, 66 s, cost 4.345,
   violation 0; it ends lying on its back at pitch 4.73 (torso centre 4.6 cm up) rolling
   at 1.0 rad/s; fidelity 0.1 mm / 3e-4 deg.
-- ``handstand``: not solved. Every plan tried at 2 ms fails at the same place: where
-  the weight must move from the feet onto the hands. Measured:
-  - the default plan: the pitch continuation reaches pi in about 340 iterations, but
-    the 0.6 and 1.8 stages hit their 60-iteration limits, and at 1.4 -> 1.8 the cost
-    jumps from 0.1 to ~29 N^2 m^2 s. A straight body at pitch 1.8 with its hands on the
-    floor has its feet 0.2 m up: a plank cannot be levered about the hands by an 8 N m
-    shoulder (the body's weight at 0.45 m needs ~11 N m), so only violent motions reach
-    these targets. The rest ramp after it left violations of 7-18 (SLSQP steps of 3-6
-    rad), and still 13 with each rest stage boxed to 0.2 rad;
-  - the torque limits enforced (factor 1) through the continuation: the same wall at
-    1.8, with the later stages at their iteration limits;
-  - the hands planted at T (palm within 1 cm of the floor) from pitch 1.5 or 1.7, with
-    a coarse or a fine (0.2 rad) ramp: the same wall;
-  - IPOPT with the default plan: its first stage hit the 60-iteration limit;
-  - ``guess="bridge"`` (K = 10, per-variable boxes spline 0.3 rad, node positions 0.1,
-    velocities 1.0): the pitch stage stalls at violation 1.7 ("positive directional
-    derivative");
-  - end posture as continuation parameters (end joints free, terminal equalities on
-    pitch, hip and shoulder), from a fold guess that rolls out into a pike bridge on
-    hands and feet (``(0.3 T: arms 1.4 rad), (0.7 T: hip -1.75, shoulder pi - 1.75)``):
-    the bridge at T converges (cost 26-40), but every step towards the handstand,
-    straight-line or along statically balanced press postures (the CoM over the hands,
-    arms vertical), hits its iteration limit at violation 0.4-2.9;
-  - physical targets at T (hands planted, CoM within 3 cm of the hands' x, the feet
-    ``fh`` above the hands, ``fh`` ramped from 0.02 m), from the same bridge guess: the
-    feet never leave the floor (CoM 0.18 m behind the hands at ``fh`` = 0.16).
-  The missing piece is a guess, or a move, that transfers the weight onto the hands (a
-  kick, or a pike press with the shoulders leaning past the hands); continuation on
-  terminal targets does not find it.
-  **Closest so far** (the end of session 6, not yet the default): a scan of 324
-  keyframe guesses (rolled out with the control points inside the joint limits) found
-  a kick, ``((0.35 T: hip -1.2, shoulder 2.0), (0.8 T: hip 0, shoulder -0.5))``, whose
-  rollout passes through a handstand at T (pitch pi + 0.18, torso at the handstand
-  height, tipping at 0.67 rad/s). From it, pitch pi directly (no pitch ramp), then a finer
-  rest ramp ``(ptol, vtol, atol, tau factor) = (0.3, 1, 5, 4), (0.1, 0.3, 1.5, 2.5),
-  (0.03, 0.1, 0.5, 1.6), (0.02, 0.06, 0.3, 1.4), (0.01, 0.03, 0.15, 1.2), (0.005, 0.015,
-  0.08, 1.1), (8e-4, 8e-3, 0.04, 1.0)`` with every rest stage boxed to 0.1 rad: six
-  stages converge (cost 8.5 N^2 m^2 s, against ~66 from the pitch continuation), down to
-  base rates of 0.03 with torques within 1.2x the limits. The 1.1x stage then stalls at
-  violation 0.05-0.5: the shoulder needs 13.5 N m there, and the pitch rate is 0.057.
-  The same run with a 10 N m shoulder also stalls at 1.1x and diverges in the last
-  stage. Next: more control points late in the motion, or a longer balance phase before T.
+- ``handstand`` (from the start position): **solved** from the default guess (a kick
+  onto the hands) by the plan above, at `HANDSTAND_DT` = 1.25 ms: 175 SLSQP iterations,
+  ~220 s, cost 13.23 N^2 m^2 s, violation 1.5e-9, 7/7 criteria (pitch within 1.5e-9 of
+  pi, base rates <= 8e-3, hold test 3.2 mrad); fidelity 0.31 mm / 0.042 deg (velocities
+  1.4e-4 m/s, 0.021 deg/s); step check along the solution ok (limit 1.48 ms). The
+  robot dives forward 0.31 m onto its hands: the palm's front edge lands at 0.82 s
+  (about 180 N for a few ms, 15 mm into the compliant floor), it rocks onto the whole
+  palm by 1.5 s and the motors settle it. What made it work, each measured:
+  - a guess that ends near the answer: scans of 810 and 729 kick keyframe sets found a
+    few whose rollouts end on the hands at T (`HANDSTAND_KEYFRAMES`); the handstand is an
+    inverted pendulum on the palm, so most neighbours fall to either side, and one
+    neighbour, ``(0.6 s: hip -1.0, shoulder 2.3), (1.6 s: -0.3, -0.3)``, stalls at the
+    rest ramp's second stage;
+  - 2.5 s with 15 control points, not 2.0 s with 12: the last two knot spans settle
+    the body (in 2.0 s an earlier kick's 1.1x-torque stage stalled, the shoulder needing
+    13.5 N m);
+  - a small first step and a box on the pitch stage (`HANDSTAND_FIRST_STEP`,
+    `HANDSTAND_PITCH_TRUST`): with SLSQP's default first step of ~1 rad it tipped the
+    guess off its hands, and the pitch stage wandered for 30-110 iterations into a
+    different end each run (one run of 711 s converged, cost 11.1; others stalled);
+  - 1.25 ms, not 2 ms: see `HANDSTAND_DT` (the 2 ms solution, cost 20.43, passed every
+    criterion in its own integrator but not when re-simulated finer).
+  Plans that failed in earlier sessions, all from guesses that stay on the feet: a
+  continuation on the terminal pitch (0.15 ... pi: stalls at 1.4 -> 1.8, where a plank
+  must be levered about the hands by the 8 N m shoulder), with the torque limits
+  enforced throughout, with the hands planted at T, IPOPT, the multiple-shooting
+  ``guess="bridge"`` (stalls at violation 1.7), a continuation on the end posture
+  through a pike bridge, and physical targets (CoM over the hands, feet raised).
 - ``standing`` (from `ROLL_END`, the roll's end): **solved** from `STANDING_KEYFRAMES`
   (legs swung forward and down while the arms swing back, then straightened): 276
   iterations, 129 s including a 15 s compile, cost 13.19, violation 6e-9, every criterion
@@ -258,16 +244,39 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
     return [pitch, *rest, ScaledTorqueLimits(stage=stage)]
 
 
-#: the default initial guess of the handstand: (fraction of T, (hip, shoulder) rad),
-#: smoothstep ramps between (see `_hopping.keyframe_guess`): raise the arms overhead
-#: while the hip opens slightly (legs back, 0.16 rad at mid-motion) to counterbalance,
-#: then stand straight. Rolled out, the robot stays on its feet (pitch -0.04 rad at T,
-#: tipping back at 0.3 rad/s): a "stand still" guess, from which the terminal pitch
-#: responds smoothly to the controls (the feasibility study's recipe). Guesses that end
-#: lying on the floor (a pike onto the hands that does not get the legs up, or one that
-#: tips over the hands onto the back) give the terminal constraints no gradient: SLSQP
-#: stalls there (see the module docstring, Status).
-HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.5, (0.16, 0.0)), (1.0, (0.0, 0.0)))
+#: the handstand's duration (s) and control points per joint: the kick below takes 2 s,
+#: the last 0.5 s (two knot spans) leave the motors time to settle the body on the palm
+#: (in 2.0 s, with 12 control points, an earlier kick's rest ramp stalled at its
+#: 1.1x-torque stage: the shoulder needed 13.5 N m to stop the tipping in time)
+HANDSTAND_T, HANDSTAND_N_CTRL = 2.5, 15
+#: the default initial guess of the handstand, (time s, (hip, shoulder) rad) with
+#: smoothstep ramps between (see `_hopping.keyframe_guess`): a kick. Fold at the hip
+#: (legs forward, -0.8 rad) while the arms swing forward and down to the floor
+#: (shoulder 2.5) by 0.7 s, swing the legs back and up over the hands while the arms go
+#: overhead (hip -0.3, shoulder -0.2 at 1.6 s), straighten by 2.0 s and hold. Chosen
+#: from scans of 810 and then 729 keyframe sets (rolled out with the control points
+#: inside the joint limits, at 2 ms, scored by the distance from a handstand at rest at
+#: T): its rollout ends on the hands at T, pitch pi + 0.05 (pi + 0.11 at `HANDSTAND_DT`),
+#: torso at the handstand height (0.5 mm), base speeds <= 0.1 (0.21). The handstand is an inverted pendulum on the palm, so
+#: the neighbourhood is narrow: 5 of the 729 sets end near it, the others fall to
+#: either side. A guess that stays on the feet (raise the arms, counterbalance with the
+#: hip) needed a pitch continuation that stalled where the weight moves onto the hands;
+#: one that ends lying on the floor gives the terminal pitch no gradient (see the
+#: module docstring, Status).
+HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.7, (-0.8, 2.5)), (1.6, (-0.3, -0.2)), (2.0, (0.0, 0.0)),
+                       (HANDSTAND_T, (0.0, 0.0)))
+#: the handstand's rest ramp (see `REST_RAMP`): finer in its last stages, where the
+#: torque limits close in on what catching the body needs; every stage boxed to
+#: `HANDSTAND_REST_TRUST` rad around where it starts
+HANDSTAND_REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), (0.02, 0.06, 0.3, 1.4),
+                       (0.01, 0.03, 0.15, 1.2), (0.005, 0.015, 0.08, 1.1), (0.8e-3, 0.8e-2, 0.04, 1.0))
+HANDSTAND_REST_TRUST = 0.1
+#: the handstand's first stage (the terminal pitch at pi) is boxed to this (rad), and
+#: SLSQP's first step of every stage is about `HANDSTAND_FIRST_STEP` rad (see `cs.solve`'s
+#: ``objective_scale``): the guess ends close to the handstand, and a first step of ~1
+#: rad (the default) tips it off the hands (measured: violation 0.05 -> 1.55, and the
+#: pitch stage then wanders for 30-110 iterations into a different end each run)
+HANDSTAND_PITCH_TRUST, HANDSTAND_FIRST_STEP = 0.3, 0.05
 #: the handstand's "bridge" guess (``guess="bridge"``, for multiple shooting): lean
 #: forward about the planted feet, legs vertical, into a pike bridge with the hands on the
 #: floor ahead (torso pitch `BRIDGE_PITCH`, arms vertical) at 40 % of T, then swing the
@@ -311,8 +320,6 @@ def bridge_nodes(model, t_final):
     return node
 
 
-#: the handstand's continuation on the terminal pitch (equality; level 0)
-HANDSTAND_PITCH_RAMP = (0.15, 0.3, 0.6, 1.0, 1.4, 1.8, 2.2, 2.6, 2.9, np.pi)
 #: the roll's guess: tip the body forward with the shoulder (arms pinned on the floor, the
 #: torso leans past the hands), pike while falling, land on the back
 ROLL_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.3, (0.0, -0.6)), (0.7, (-1.0, -0.3)), (1.0, (-1.5, 0.0)))
@@ -361,26 +368,38 @@ REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), 
 #: the pitch rate off by 0.035 rad/s at rest while the positions agree), at 3 ms and below
 #: the results agree with 0.25 ms to 5 digits. 2 ms leaves room for heavier loads.
 DT = 2e-3
+#: the handstand's RK4 step (s): its hands land hard (about 180 N on the palm's edge for
+#: a few ms), which puts the friction's viscous mode at ~2,000 1/s, past RK4's limit at
+#: 2 ms (1.35 ms along the 2 ms solution). Planned at 2 ms, the "at rest" of the end was
+#: partly the integrator's: re-simulated at 1.25, 1 and 0.5 ms the same controls end
+#: with a pitch rate of -0.013 rad/s and the pitch 2.6 mrad off (criteria: 0.01, 1e-3).
+#: At 1.25 ms the three agree to 3e-4 rad/s, and the step check along the solution is
+#: ok (limit 1.48 ms)
+HANDSTAND_DT = 1.25e-3
 
 
-def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None):
-    """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, then the
-    ``rest_ramp`` (level 1) at the last pitch, each of its stages within a box of
-    ``rest_trust`` rad around where it starts (None: the problem's own trust region)."""
+def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None, pitch_trust=None):
+    """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, each stage
+    within a box of ``pitch_trust`` rad around where it starts, then the ``rest_ramp``
+    (level 1) at the last pitch, each of its stages within ``rest_trust`` (None: the
+    problem's own trust region)."""
     final = pitch_ramp[-1] if len(pitch_ramp) else 2 * np.pi
     tr = {} if rest_trust is None else dict(trust_region=rest_trust)
-    return ([dict(params=dict(pitch=p), level=0) for p in pitch_ramp] +
+    tp = {} if pitch_trust is None else dict(trust_region=pitch_trust)
+    return ([dict(params=dict(pitch=p), level=0, **tp) for p in pitch_ramp] +
             [dict(params=dict(pitch=final, ptol=pt, vtol=v, atol=acc, tau_factor=f), level=1, **tr)
              for pt, v, acc, f in rest_ramp])
 
 
-def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = DT, t_final: float | None = None, q0=None,
+def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = None, t_final: float | None = None, q0=None,
                     v0=None, model=None, shooting: int = 1, guess: str = "default"):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
 
     Args:
       name: one of ``SEGMENTS``.
-      n_ctrl: control points per active joint. dt: RK4 step (s).
+      n_ctrl: control points per active joint (default 12; the handstand
+        `HANDSTAND_N_CTRL`). dt: RK4 step (s; default `DT`, the handstand
+        `HANDSTAND_DT`).
       t_final: duration (s; default per segment).
       q0, v0: start state (default: the segment's nominal start posture at rest; in a
         sequence the previous segment's end state replaces it).
@@ -399,15 +418,21 @@ def tumbler_segment(name: str, *, n_ctrl: int = 12, dt: float = DT, t_final: flo
         raise ValueError(f"tumbler_segment: guess={guess!r} is not available for {name!r} with shooting={shooting} "
                          "(guesses: 'default'; 'bridge' for the handstand with shooting > 1)")
     rest_params = {"ptol": REST_RAMP[-1][0], "vtol": REST_RAMP[-1][1], "atol": REST_RAMP[-1][2], "tau_factor": 1.0}
+    if n_ctrl is None:
+        n_ctrl = HANDSTAND_N_CTRL if name == "handstand" else 12
+    if dt is None:
+        dt = HANDSTAND_DT if name == "handstand" else DT
     if name == "handstand":
-        T = 2.0 if t_final is None else t_final
+        T = HANDSTAND_T if t_final is None else t_final
         q0 = start_q(model) if q0 is None else q0
+        kf = tuple((min(t / T, 1.0), post) for t, post in HANDSTAND_KEYFRAMES if t < T) + ((1.0, (0.0, 0.0)),)
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
                           rest_end=True, constraints=_rest_terms(pitch_eq=True), params={"pitch": np.pi, **rest_params},
-                          initial_guess=keyframe_guess(HANDSTAND_KEYFRAMES, T, ("hip", "shoulder")), **common)
-        p.solve_options["schedule"] = _plan(HANDSTAND_PITCH_RAMP)
+                          initial_guess=keyframe_guess(kf, T, ("hip", "shoulder")), **common)
+        p.solve_options["schedule"] = _plan((np.pi,), HANDSTAND_REST_RAMP, rest_trust=HANDSTAND_REST_TRUST,
+                                            pitch_trust=HANDSTAND_PITCH_TRUST)
         # the ramp's stages only warm-start the next one: a loose tolerance is enough
-        p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60)
+        p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60, first_step=HANDSTAND_FIRST_STEP)
         if guess == "bridge":
             T_ = p.t_final
             p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
@@ -497,7 +522,7 @@ def _criteria(name):
             {"type": "final_q", "joint": "shoulder", "target": ARMS_DOWN, "tol": 1e-6, "name": "arms down"}, *rest]
 
 
-def tumbler(n_ctrl: int = 12, dt: float = DT):
+def tumbler(n_ctrl: int | None = None, dt: float | None = None):
     """The four-segment tumbler `MotionSequence` (see the module docstring)."""
     model = robots.tumbler(feet=True)
     segs = []

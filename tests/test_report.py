@@ -301,3 +301,26 @@ def test_fidelity_flags_velocities_too():
         flags = report._flags({**ok, key: val}, 0.01, 2.0)
         assert len(flags) == 1 and word in flags[0], flags
     assert report._flags({**ok, "velocity_m_s": None}, 0.01, 2.0) == []  # a robot without such DoFs
+
+
+def test_torque_check_reads_every_step():
+    """`report.torque_check`: the active joints' torques against the effort limits on every
+    step of the trajectory (an impact spike between the samples of a sampled torque
+    constraint is what it is for); the tumbler's hip limit is 12 N m, the shoulder's 8."""
+    import importlib
+
+    prob = importlib.import_module("cstorm.examples.tumbler").tumbler_segment("start")  # built, not compiled
+    m = prob.model
+    tau = np.zeros((101, 5))
+    tau[:, 3] = 5.0
+    tau[37, 4] = -12.0  # one step at 1.5x the shoulder's limit
+    tau[:, 0] = 100.0  # a passive DoF: not a motor, not checked
+    sol = _fake_solution(m, np.zeros((101, 5)), np.zeros((101, 5)), tau)
+    r = report.torque_check(prob, sol)
+    assert r["ok"] is False and r["joint"] == "shoulder" and r["worst_ratio"] == pytest.approx(1.5)
+    assert r["t"] == pytest.approx(0.37) and "1.50x" in r["message"]
+    seg = r["segments"][0]
+    assert seg["max_abs_tau"] == {"hip": 5.0, "shoulder": 12.0} and seg["ratio"]["hip"] == pytest.approx(5 / 12)
+    tau[37, 4] = -8.0
+    assert report.torque_check(prob, _fake_solution(m, np.zeros((101, 5)), np.zeros((101, 5)), tau))["ok"] is True
+    json.dumps(r)

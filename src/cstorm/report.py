@@ -773,12 +773,49 @@ _FIELDS = ("problem", "success", "message", "cost", "constraint_violation", "ite
            "compile_time_s")
 
 
+def torque_check(problem, solution) -> dict:
+    """The active joints' torques against the model's effort limits on *every* step of
+    every segment's trajectory (not only on the constraint grid of ``TorqueLimits``-style
+    constraints, which sample the path: a contact impact between two samples can need far
+    more than the limit for a few ms). Joints without a finite limit are skipped.
+
+    Returns ``{"ok", "worst_ratio", "joint", "t", "segment", "message", "segments": [{"segment",
+    "ok", "worst_ratio", "joint", "t", "max_abs_tau": {joint: N m}, "ratio": {joint: |tau|/limit}}]}``
+    (``ok``: every ratio <= 1 + 1e-6; ``t`` in the segment's own time, s)."""
+    out_segs = []
+    for prob, sol in zip(problem_segments(problem), segment_solutions(solution)):
+        m, lay = prob.model, prob.layout
+        tau, t = np.asarray(sol.trajectory["tau"], float), np.asarray(sol.trajectory["t"], float)
+        lim = np.asarray(m.effort_limit, float)
+        names, ratio, mx, worst = _dof_names(m, "v"), {}, {}, (0.0, None, None)
+        for i in lay.va_idx:
+            if not np.isfinite(lim[i]) or lim[i] <= 0:
+                continue
+            a = np.abs(tau[:, i])
+            k = int(np.argmax(a))
+            mx[names[i]], ratio[names[i]] = float(a[k]), float(a[k] / lim[i])
+            if a[k] / lim[i] > worst[0]:
+                worst = (float(a[k] / lim[i]), names[i], float(t[k]))
+        out_segs.append(dict(segment=sol.problem or prob.name, ok=bool(worst[0] <= 1 + 1e-6), worst_ratio=worst[0],
+                             joint=worst[1], t=worst[2], max_abs_tau=mx, ratio=ratio))
+    w = max(out_segs, key=lambda r: r["worst_ratio"]) if out_segs else None
+    ok = all(r["ok"] for r in out_segs)
+    msg = ("every active joint's torque is within its effort limit on every step" if ok else
+           f"{w['segment']}: {w['joint']} needs {w['worst_ratio']:.2f}x its effort limit at t = {w['t']:.3f} s "
+           "(between the samples of the torque-limit constraint; sample it more densely, n_path_samples)")
+    return dict(ok=ok, worst_ratio=w["worst_ratio"] if w else 0.0, joint=w["joint"] if w else None,
+                t=w["t"] if w else None, segment=w["segment"] if w else None, message=msg, segments=out_segs)
+
+
 def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_segment_criteria=None,
                  source=None, extra_provenance=None, time_step=None) -> dict:
     """The ``summary.json`` dict: ``problem, success, solver_success, message, cost,
     constraint_violation, iterations, wall_time_s, compile_time_s, criteria, fidelity,
     segments`` (the same fields per segment) and ``provenance`` (cstorm version, problem
     hash, solver options, success criteria, source).
+
+    ``torque_limits``: `torque_check` (the effort limits on every step; each segment
+    carries its own). Like ``time_step``, it does not enter ``success``.
 
     ``time_step`` (optional): the `cstorm.check_time_step` result of each segment (a
     list, or one dict for a single problem). When given, every entry of ``segments``
@@ -862,6 +899,10 @@ def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_
                fidelity=fidelity_report, segments=segments, provenance=prov)
     if time_step is not None:
         out["time_step"] = ts_top
+    tq = torque_check(problem, solution)
+    out["torque_limits"] = {k: v for k, v in tq.items() if k != "segments"}
+    for seg, r in zip(segments, tq["segments"]):
+        seg["torque_limits"] = r
     return _strict(out)
 
 

@@ -37,9 +37,10 @@ def map_usage():
     return n, limit
 
 
-def relieve_map_pressure(fraction: float = FRACTION, where: str = "cstorm") -> bool:
+def relieve_map_pressure(fraction: float = FRACTION, where: str = "cstorm", warn: bool = True) -> bool:
     """Drop JAX's compilation caches if this process uses more than ``fraction`` of its
-    memory-map limit; returns whether it did. ``where`` names the caller in the warning."""
+    memory-map limit; returns whether it did. ``where`` names the caller in the warning
+    (``warn=False``: no warning)."""
     usage = map_usage()
     if usage is None or usage[0] < fraction * usage[1]:
         return False
@@ -48,6 +49,8 @@ def relieve_map_pressure(fraction: float = FRACTION, where: str = "cstorm") -> b
     jax.clear_caches()
     gc.collect()
     after = map_usage()
+    if not warn:
+        return True
     warnings.warn(
         f"{where}: this process held {usage[0]} memory mappings of its limit vm.max_map_count = {usage[1]} "
         f"(compiled JAX code; past the limit XLA's compiler crashes), so JAX's compilation caches were "

@@ -257,8 +257,6 @@ def cmd_solve(args):
               f"  criteria: {len(summary['criteria']) - len(failed)}/{len(summary['criteria'])} ok"
               + (f" (failed: {failed})" if failed else "") + f"; {fl}" + (f" ({dev})" if dev else "") +
               "".join(f"\n  warning: {w}" for w in summary.get("warnings", [])) +
-              ("" if (summary.get("torque_limits") or {}).get("ok", True) else
-               f"\n  warning: torque limits: {summary['torque_limits']['message']}") +
               f"\n  wrote {', '.join(summary['files'])} to {out}", file=sys.stderr)
     return 0 if summary["success"] else 1
 

@@ -784,18 +784,17 @@ def torque_check(problem, solution) -> dict:
     (``ok``: every ratio <= 1 + 1e-6; ``t`` in the segment's own time, s)."""
     out_segs = []
     for prob, sol in zip(problem_segments(problem), segment_solutions(solution)):
-        m, lay = prob.model, prob.layout
-        tau, t = np.asarray(sol.trajectory["tau"], float), np.asarray(sol.trajectory["t"], float)
-        lim = np.asarray(m.effort_limit, float)
-        names, ratio, mx, worst = _dof_names(m, "v"), {}, {}, (0.0, None, None)
-        for i in lay.va_idx:
-            if not np.isfinite(lim[i]) or lim[i] <= 0:
-                continue
-            a = np.abs(tau[:, i])
-            k = int(np.argmax(a))
-            mx[names[i]], ratio[names[i]] = float(a[k]), float(a[k] / lim[i])
-            if a[k] / lim[i] > worst[0]:
-                worst = (float(a[k] / lim[i]), names[i], float(t[k]))
+        lim = np.asarray(prob.model.effort_limit, float)
+        idx = [i for i in prob.layout.va_idx if np.isfinite(lim[i]) and lim[i] > 0]
+        names = [_dof_names(prob.model, "v")[i] for i in idx]
+        a = np.abs(np.asarray(sol.trajectory["tau"], float)[:, idx])  # (N+1, k)
+        r = a / lim[idx]
+        mx = dict(zip(names, map(float, a.max(axis=0, initial=0.0))))
+        ratio = dict(zip(names, map(float, r.max(axis=0, initial=0.0))))
+        worst = (0.0, None, None)
+        if r.size and r.max() > 0:
+            k, j = np.unravel_index(np.argmax(r), r.shape)
+            worst = (float(r[k, j]), names[j], float(np.asarray(sol.trajectory["t"], float)[k]))
         out_segs.append(dict(segment=sol.problem or prob.name, ok=bool(worst[0] <= 1 + 1e-6), worst_ratio=worst[0],
                              joint=worst[1], t=worst[2], max_abs_tau=mx, ratio=ratio))
     w = max(out_segs, key=lambda r: r["worst_ratio"]) if out_segs else None
@@ -1017,6 +1016,8 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
                 warnings_.append(f"{pre}: the initial guess: {r['message']}")
             if r and (r.get("solution") or {}).get("ok") is False:
                 warnings_.append(f"{pre}: the solution: {r['solution']['message']}")
+    if not summary["torque_limits"]["ok"]:
+        warnings_.append(f"torque limits: {summary['torque_limits']['message']}")
     solution.info = dict(solution.info or {}, provenance=summary["provenance"], criteria=criteria,
                          fidelity=fidelity_report)
     if save_solution:

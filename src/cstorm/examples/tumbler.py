@@ -275,13 +275,9 @@ HANDSTAND_T, HANDSTAND_N_CTRL = 2.5, 15
 #: hip) needed a pitch continuation that stalled where the weight moves onto the hands;
 #: one that ends lying on the floor gives the terminal pitch no gradient (see the
 #: module docstring, Status).
-HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.7, (-0.8, 2.5)), (1.6, (-0.3, -0.2)), (2.0, (0.0, 0.0)),
-                       (HANDSTAND_T, (0.0, 0.0)))
-#: the handstand's rest ramp (see `REST_RAMP`): finer in its last stages, where the
-#: torque limits close in on what catching the body needs; every stage boxed to
-#: `HANDSTAND_REST_TRUST` rad around where it starts
-HANDSTAND_REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), (0.02, 0.06, 0.3, 1.4),
-                       (0.01, 0.03, 0.15, 1.2), (0.005, 0.015, 0.08, 1.1), (0.8e-3, 0.8e-2, 0.04, 1.0))
+HANDSTAND_KEYFRAMES = ((0.0, (0.0, ARMS_DOWN)), (0.7, (-0.8, 2.5)), (1.6, (-0.3, -0.2)), (2.0, (0.0, 0.0)))
+#: every stage of the handstand's rest ramp (`HANDSTAND_REST_RAMP`) is boxed to this (rad)
+#: around where it starts
 HANDSTAND_REST_TRUST = 0.1
 #: the handstand's first stage (the terminal pitch at pi) is boxed to this (rad), and
 #: SLSQP's first step of every stage is about `HANDSTAND_FIRST_STEP` rad (see `cs.solve`'s
@@ -380,6 +376,10 @@ REST_RAMP = ((0.3, 1.0, 5.0, 4.0), (0.1, 0.3, 1.5, 2.5), (0.03, 0.1, 0.5, 1.6), 
 #: the pitch rate off by 0.035 rad/s at rest while the positions agree), at 3 ms and below
 #: the results agree with 0.25 ms to 5 digits. 2 ms leaves room for heavier loads.
 DT = 2e-3
+#: the handstand's rest ramp: `REST_RAMP` with two more stages (1.4x and 1.1x torque),
+#: finer where the torque limits close in on what catching the body needs
+HANDSTAND_REST_RAMP = REST_RAMP[:3] + ((0.02, 0.06, 0.3, 1.4),) + REST_RAMP[3:4] + ((0.005, 0.015, 0.08, 1.1),) + \
+    REST_RAMP[4:]
 #: the handstand's RK4 step (s): its hands land hard (about 180 N on the palm's edge for
 #: a few ms), which puts the friction's viscous mode at ~2,000 1/s, past RK4's limit at
 #: 2 ms (1.35 ms along the 2 ms solution). Planned at 2 ms, the "at rest" of the end was
@@ -438,7 +438,8 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     if name == "handstand":
         T = HANDSTAND_T if t_final is None else t_final
         q0 = start_q(model) if q0 is None else q0
-        kf = tuple((min(t / T, 1.0), post) for t, post in HANDSTAND_KEYFRAMES if t < T) + ((1.0, (0.0, 0.0)),)
+        # keyframes in seconds -> fractions of T, holding the straight end posture to T
+        kf = tuple((t / T, post) for t, post in HANDSTAND_KEYFRAMES if t < T) + ((1.0, (0.0, 0.0)),)
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
                           rest_end=True, constraints=_rest_terms(pitch_eq=True), params={"pitch": np.pi, **rest_params},
                           initial_guess=keyframe_guess(kf, T, ("hip", "shoulder")), **common)

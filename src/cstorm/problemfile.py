@@ -544,7 +544,7 @@ def _cost(ctx, c, k, joints, params, C):
 _CONSTRAINTS = {
     "terminal_state": ({"joint", "q", "v", "a", "kind", "tol", "stage", "name"}, {"joint"}),
     "joint_limits": ({"joints", "position", "velocity", "stage", "name"}, set()),
-    "torque_limits": ({"limits", "joints", "stage", "name"}, set()),
+    "torque_limits": ({"limits", "joints", "stage", "name", "factor", "dense", "rho"}, set()),
 }
 
 
@@ -577,4 +577,7 @@ def _constraint(ctx, c, k, joints, params, K):
                              velocity=ctx.boolean(c, "velocity", w, True), stage=stage, name=name)
     js = ctx.names(c["joints"], f"{w} joints", joints) if "joints" in c else None
     lim = ctx.value_or_param(c["limits"], f"{w} limits", params) if "limits" in c else None
-    return K.TorqueLimits(lim, joints=js, stage=stage, name=name)
+    factor = ctx.value_or_param(c.get("factor", 1.0), f"{w} factor", params)
+    rho = ctx.number(c, "rho", w, default=200.0, positive=True)
+    return K.TorqueLimits(lim, joints=js, stage=stage, name=name, factor=factor, dense=ctx.boolean(c, "dense", w, False),
+                          rho=rho)

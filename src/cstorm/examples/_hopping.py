@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
 from ..errors import ProblemError
-from ..optimize.constraints import Constraint
+from ..optimize.constraints import Constraint, TorqueLimits
 from ..optimize.costs import Cost, resolve
 from ._planar import criterion, longest_run, trajectory_contact_d
 
@@ -180,29 +180,37 @@ class LandingPenalty(Cost):
         return {"type": "LandingPenalty", "weight": self.weight, "q_rest": self.q_rest, "joints": list(self.joints)}
 
 
-class ScaledTorqueLimits(Constraint):
-    """``1 - |tau_i| / limit_i >= 0`` for the active joints' motors, sampled on the
-    constraint grid (the model's effort limits): `constraints.TorqueLimits` divided by the
-    limits, so that its values are O(1) like the other constraints' (SLSQP reports
-    "inequality constraints incompatible" with raw N m values of a 200 N m motor)."""
+class ScaledTorqueLimits(TorqueLimits):
+    """``factor - |tau_i| / limit_i >= 0`` for the active joints' motors (the model's
+    effort limits): `constraints.TorqueLimits` divided by the limits, so that its values
+    are O(1) like the other constraints' (SLSQP reports "inequality constraints
+    incompatible" with raw N m values of a 200 N m motor). ``factor`` (a number or a
+    problem parameter's name, default 1) lets a solve plan start with the limits relaxed
+    and tighten them to 1. ``dense=True``: on every integration step, through a smooth max
+    per window of the constraint grid (see `constraints.TorqueLimits`), not only on the
+    grid."""
 
-    kind = "ineq"
-
-    def __init__(self, stage=0, name="torque_limits"):
-        self.stage, self.name = int(stage), name
+    def __init__(self, factor=1.0, stage=0, name="torque_limits", dense=False, rho=200.0):
+        super().__init__(stage=stage, name=name, normalized=True, dense=dense, rho=rho, factor=factor)
 
     def check(self, problem):
-        self._idx = np.array(problem.layout.va_idx, int)
-        lim = np.asarray(problem.model.effort_limit)[self._idx]
+        lim = np.asarray(problem.model.effort_limit)[np.array(problem.layout.va_idx, int)]
         if not np.all(np.isfinite(lim)):
             raise ProblemError("ScaledTorqueLimits: the model's effort_limit is infinite for some active joints")
+        super().check(problem)
 
     def values(self, ctx, end, samples):
-        r = samples["tau"][:, self._idx] / ctx.model.effort_limit[self._idx]
-        return jnp.concatenate([(1.0 - r).ravel(), (1.0 + r).ravel()])
+        hi, lo = self.ratios(samples, ctx.model.effort_limit[self._idx])
+        f = resolve(self.factor, ctx.params)
+        return jnp.concatenate([(f - hi).ravel(), (f - lo).ravel()])
 
     def describe(self):
-        return {"type": "ScaledTorqueLimits", "stage": self.stage}
+        d = {"type": "ScaledTorqueLimits", "stage": self.stage}
+        if not (isinstance(self.factor, (int, float)) and self.factor == 1.0):
+            d["factor"] = self.factor
+        if self.dense:
+            d.update(dense=True, rho=self.rho)
+        return d
 
 
 def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-12):
@@ -263,7 +271,10 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
     - ``final_base_speed``: max |v_base| (m/s, rad/s) at T <= ``vel_tol``;
     - ``final_base_accel``: max |a_base| at T <= ``acc_tol`` (at rest, not mid-bounce);
     - ``max_penetration``: the deepest any contact point went below the ground (m) <=
-      ``max_penetration`` (no limbs through the floor).
+      ``max_penetration`` (no limbs through the floor);
+    - ``torque_limits``: the largest ``|tau_i| / limit_i`` of the active joints on *every*
+      integration step (not only at the constraint's samples) <= 1 (+1e-6): the motors can
+      deliver the motion.
     """
     tr = solution.trajectory
     m = problem.model
@@ -284,8 +295,19 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
         final_base_speed=criterion(np.max(np.abs(v[-1, vp])), vel_tol, np.max(np.abs(v[-1, vp])) <= vel_tol),
         final_base_accel=criterion(np.max(np.abs(a[-1, vp])), acc_tol, np.max(np.abs(a[-1, vp])) <= acc_tol),
         max_penetration=criterion(max(0.0, -float(np.min(d))), max_penetration, -float(np.min(d)) <= max_penetration),
+        torque_limits=criterion(worst_torque_ratio(problem, tr), 1.0, worst_torque_ratio(problem, tr) <= 1.0 + 1e-6),
     )
     return out
+
+
+def worst_torque_ratio(problem, trajectory):
+    """The largest ``|tau_i| / limit_i`` over every step of ``trajectory`` (a dict with
+    ``tau`` (N+1, nv)) and the active joints with a finite effort limit (0 if none)."""
+    lim = np.asarray(problem.model.effort_limit, float)
+    idx = [i for i in problem.layout.va_idx if np.isfinite(lim[i]) and lim[i] > 0]
+    if not idx:
+        return 0.0
+    return float(np.max(np.abs(np.asarray(trajectory["tau"], float)[:, idx]) / lim[idx]))
 
 
 def keyframe_guess(keyframes, t_final, names):
@@ -307,10 +329,16 @@ RAMP = ((1 / 3, 0.05), (2 / 3, 0.02), (5 / 6, 0.01), (0.91625, 0.01), (1.0, 0.01
         (1.0, 5e-4))
 
 
+#: with ``dense_torque``: the factor on the effort limits of the every-step torque
+#: constraint, stage by stage (the sampled solution needs up to 1.11x at the landing)
+DENSE_RAMP = (1.25, 1.1, 1.0)
+
+
 def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ctrl, dt, clearance, max_pitch,
                 w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
                 intermediate_max_iter=60, n_path_samples=50, trust=1.0, margin=1.0, first_step=None,
-                land_tol=1e-6, ramp=None, max_penetration=0.01, shooting=1):
+                land_tol=1e-6, ramp=None, max_penetration=0.01, shooting=1, dense_torque=False,
+                dense_ramp=DENSE_RAMP):
     """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
     that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
     root_z, root_pitch`` then the active joints) and ends in the same posture, at rest,
@@ -353,7 +381,13 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
     - ``problem.success_criteria``: `hop_criteria` with ``min_flight`` (s) and
       ``max_penetration`` (m);
     - ``shooting``: `MotionProblem`'s multiple shooting intervals (default 1: single
-      shooting); the node states are not bounded by ``trust``.
+      shooting); the node states are not bounded by ``trust``;
+    - ``dense_torque``: the motor limits on every integration step too (stage 2,
+      `ScaledTorqueLimits` with ``dense=True`` and the factor ``tau_factor`` on the limits):
+      after the landing ramp, at its last tolerance, the factor goes along ``dense_ramp``
+      (default `DENSE_RAMP`, 1.25 -> 1), then the final ``land_tol`` stage keeps it at 1.
+      The sampled limits (stage 0) alone let a contact impact between two samples need
+      more than the motor has.
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
     from ..environment import Environment, ground
     from ..optimize import costs, constraints
@@ -375,9 +409,10 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
             ScaledTorqueLimits(),
             FlightClearance("clearance"),
             PitchBound("max_pitch", center=pitch_rest),
-        ],
+        ] + ([ScaledTorqueLimits("tau_factor", dense=True, stage=2, name="torque_limits_every_step")]
+             if dense_torque else []),
         params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
-                "land_tol": land_tol},
+                "land_tol": land_tol, **({"tau_factor": 1.0} if dense_torque else {})},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
     )
@@ -401,8 +436,13 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         ramp = RAMP if ramp is None else ramp
         schedule = [dict(params=dict(distance=d0, w_land=w_land * 0.01), level=0),
                     dict(params=dict(distance=d0, w_land=w_land * 0.1), level=0)] + [
-            dict(params=dict(distance=distance * f, land_tol=tl), level=1) for f, tl in ramp] + [
-            dict(params=dict(distance=distance, land_tol=land_tol), level=1)]
+            dict(params=dict(distance=distance * f, land_tol=tl), level=1) for f, tl in ramp]
+        if dense_torque:  # the limits on every step, tightened at the ramp's last tolerance
+            schedule += [dict(params=dict(distance=distance, land_tol=ramp[-1][1], tau_factor=f), level=2)
+                         for f in dense_ramp]
+        schedule += [dict(params=dict(distance=distance, land_tol=land_tol, **({"tau_factor": 1.0} if dense_torque
+                                                                                else {})),
+                          level=2 if dense_torque else 1)]
     if schedule:
         prob.solve_options["schedule"] = schedule
         prob.solve_options.update(intermediate_tol=intermediate_tol, intermediate_max_iter=intermediate_max_iter)

@@ -167,7 +167,7 @@ KEYFRAMES = (
 
 def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, dt: float = 0.002,
          clearance: float = 0.01, integrator: str = "rk4", contact=None, schedule=None, max_pitch: float = 1.0,
-         w_land: float = 1e5, first_step: float = 0.1):
+         w_land: float = 1e5, first_step: float = 0.1, dense_torque: bool = True):
     """Hop forward by at least ``distance`` m (default one foot length, 0.16 m), with a
     flight phase, and land at rest in the rest posture.
 
@@ -178,7 +178,10 @@ def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, 
     solve plan and success criteria are documented there): cost ``integral 1/2 |tau|^2
     dt`` (N^2 m^2 s) plus the landing penalty of the first stages; a flight phase with
     every contact point at least ``clearance`` m up at some instant; the base pitch
-    within ``max_pitch`` rad of its rest value; the end at rest in the rest pose.
+    within ``max_pitch`` rad of its rest value; the end at rest in the rest pose; with
+    ``dense_torque`` (default) the motor limits on every integration step, tightened along
+    `_hopping.DENSE_RAMP` after the landing ramp (without it only the constraint grid's
+    samples, and the landing needs 1.11x the elbow's limit between two of them).
     Initial guess: `KEYFRAMES` (posture level)."""
     from ._hopping import hop_problem
 
@@ -188,7 +191,7 @@ def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, 
     return hop_problem("luxo", model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
                        dt=dt, clearance=clearance, max_pitch=max_pitch, w_land=w_land, min_flight=0.05,
                        keyframes=KEYFRAMES, integrator=integrator, schedule=schedule, first_step=first_step,
-                       max_penetration=0.015)
+                       max_penetration=0.015, dense_torque=dense_torque)
 
 
 EXAMPLES = {"luxo": luxo}

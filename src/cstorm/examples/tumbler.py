@@ -144,6 +144,7 @@ from ..environment import Environment, ground
 from ..optimize import costs as C
 from ..optimize import constraints as K
 from ..optimize.problem import MotionProblem
+from ._hopping import ScaledTorqueLimits
 from ..optimize.sequence import MotionSequence
 
 __all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
@@ -199,30 +200,6 @@ def _env_contact():
     return Environment([ground()]), ContactParams(**CONTACT)
 
 
-class ScaledTorqueLimits(K.Constraint):
-    """``factor - |tau_i| / limit_i >= 0`` for the active joints' motors, sampled on the
-    constraint grid (the model's effort limits): O(1) values like the other constraints';
-    ``factor`` (a problem parameter's name, or a number) lets a solve plan start with the
-    limits relaxed and tighten them to 1 (SLSQP steps far when many raw N m limits are far
-    from satisfied)."""
-
-    kind = "ineq"
-
-    def __init__(self, factor="tau_factor", stage=0, name="torque limits"):
-        self.factor, self.stage, self.name = factor, int(stage), name
-
-    def check(self, problem):
-        self._idx = np.array(problem.layout.va_idx, int)
-
-    def values(self, ctx, end, samples):
-        r = samples["tau"][:, self._idx] / ctx.model.effort_limit[self._idx]
-        f = C.resolve(self.factor, ctx.params)
-        return jnp.concatenate([(f - r).ravel(), (f + r).ravel()])
-
-    def describe(self):
-        return {"type": "ScaledTorqueLimits", "factor": self.factor, "stage": self.stage}
-
-
 #: the foot's contact points (heel and toe) stay within this distance of the ground
 #: while the arms swing in the last segment (m; ``d_on`` = 0.01 m, at rest 0.0055 m)
 FOOT_FLAT = 0.008
@@ -253,7 +230,7 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
     for j, what in (("root_pitch", "pitch"), ("root_x", "x"), ("root_z", "z")):
         rest += [K.TerminalState(j, v=0.0, kind="ineq", tol="vtol", stage=stage, name=f"{what} rate"),
                  K.TerminalState(j, a=0.0, kind="ineq", tol="atol", stage=stage, name=f"{what} acceleration")]
-    return [pitch, *rest, ScaledTorqueLimits(stage=stage)]
+    return [pitch, *rest, ScaledTorqueLimits("tau_factor", stage=stage, name="torque limits")]
 
 
 #: the handstand's duration (s) and control points per joint: the kick below takes 2 s,
@@ -390,6 +367,12 @@ HANDSTAND_REST_RAMP = REST_RAMP[:3] + ((0.02, 0.06, 0.3, 1.4),) + REST_RAMP[3:4]
 HANDSTAND_DT = 1.25e-3
 
 
+#: with ``dense_torque``: the factor on the effort limits of the every-step torque
+#: constraint (level 2), stage by stage after the segment's plan (the sampled solutions
+#: need up to 2.6x, handstand, and 2.9x, roll, at their impacts)
+DENSE_RAMP = (3.0, 2.2, 1.6, 1.25, 1.0)
+
+
 def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None, pitch_trust=None):
     """Stages: the terminal pitch (equality, level 0) along ``pitch_ramp``, each stage
     within a box of ``pitch_trust`` rad around where it starts, then the ``rest_ramp``
@@ -404,7 +387,8 @@ def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None, pitch_trust=None)
 
 
 def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = None, t_final: float | None = None, q0=None,
-                    v0=None, model=None, shooting: int = 1, guess: str = "default", n_path_samples: int = 40):
+                    v0=None, model=None, shooting: int = 1, guess: str = "default", n_path_samples: int = 40,
+                    dense_torque: bool = False):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
 
     Args:
@@ -430,7 +414,11 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     if guess not in ("default", "bridge") or (guess == "bridge" and (name != "handstand" or shooting < 2)):
         raise ValueError(f"tumbler_segment: guess={guess!r} is not available for {name!r} with shooting={shooting} "
                          "(guesses: 'default'; 'bridge' for the handstand with shooting > 1)")
-    rest_params = {"ptol": REST_RAMP[-1][0], "vtol": REST_RAMP[-1][1], "atol": REST_RAMP[-1][2], "tau_factor": 1.0}
+    dense = [ScaledTorqueLimits("tau_dense", stage=2, name="torque limits, every step", dense=True)] \
+        if dense_torque else []
+    dense_params = {"tau_dense": 1.0} if dense_torque else {}
+    rest_params = {"ptol": REST_RAMP[-1][0], "vtol": REST_RAMP[-1][1], "atol": REST_RAMP[-1][2], "tau_factor": 1.0,
+                   **dense_params}
     if n_ctrl is None:
         n_ctrl = HANDSTAND_N_CTRL if name == "handstand" else 12
     if dt is None:
@@ -441,7 +429,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         # keyframes in seconds -> fractions of T, holding the straight end posture to T
         kf = tuple((t / T, post) for t, post in HANDSTAND_KEYFRAMES if t < T) + ((1.0, (0.0, 0.0)),)
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
-                          rest_end=True, constraints=_rest_terms(pitch_eq=True), params={"pitch": np.pi, **rest_params},
+                          rest_end=True, constraints=_rest_terms(pitch_eq=True) + dense, params={"pitch": np.pi, **rest_params},
                           initial_guess=keyframe_guess(kf, T, ("hip", "shoulder")), **common)
         p.solve_options["schedule"] = _plan((np.pi,), HANDSTAND_REST_RAMP, rest_trust=HANDSTAND_REST_TRUST,
                                             pitch_trust=HANDSTAND_PITCH_TRUST)
@@ -459,9 +447,9 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
                                      name="pitch past lying"),
                 K.TerminalConstraint(lambda q, v, prm: 0.1 - q[1], kind="ineq", stage=0, name="torso on ground"),
                 K.TerminalConstraint(lambda q, v, prm: v[2] - 1.0, kind="ineq", stage=1, name="still rolling"),
-                ScaledTorqueLimits(stage=1)]
+                ScaledTorqueLimits("tau_factor", stage=1, name="torque limits")] + dense
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, constraints=cons,
-                          params={"pitch": 1.5 * np.pi - 0.2, "tau_factor": 1.0},
+                          params={"pitch": 1.5 * np.pi - 0.2, "tau_factor": 1.0, **dense_params},
                           initial_guess=keyframe_guess(ROLL_KEYFRAMES, T, ("hip", "shoulder")), **common)
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=40, first_step=0.1, trust_region=0.5)
     elif name == "standing":
@@ -469,7 +457,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         if q0 is None:
             q0, v0 = ROLL_END
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, q_final_active={"hip": 0.0, "shoulder": 0.0},
-                          rest_end=True, constraints=_rest_terms(pitch_eq=True),
+                          rest_end=True, constraints=_rest_terms(pitch_eq=True) + dense,
                           params={"pitch": 2 * np.pi, **rest_params},
                           initial_guess=keyframe_guess(STANDING_KEYFRAMES, T, ("hip", "shoulder")), **common)
         p.solve_options["schedule"] = _plan((2 * np.pi,), rest_trust=0.2)
@@ -479,13 +467,19 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         q0 = standing_q(model) if q0 is None else q0
         p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0,
                           q_final_active={"hip": 0.0, "shoulder": ARMS_DOWN}, rest_end=True,
-                          constraints=_rest_terms(pitch_tol=0.05),
+                          constraints=_rest_terms(pitch_tol=0.05) + dense,
                           params={"pitch": 2 * np.pi, **rest_params},
                           initial_guess=keyframe_guess(START_KEYFRAMES, T, ("hip", "shoulder")), **common)
         p.solve_options["schedule"] = _plan()
         p.solve_options.update(intermediate_tol=1e-6, intermediate_max_iter=60, first_step=0.05, trust_region=0.05)
     else:
         raise ValueError(f"unknown tumbler segment {name!r}; segments are {SEGMENTS}")
+    if dense_torque:  # after the plan, the limits on every step, tightened along DENSE_RAMP
+        plan = p.solve_options.get("schedule") or [dict(params={}, level=0), dict(params={}, level=1)]
+        last = dict(plan[-1].get("params", {}))
+        tr = {k: v for k, v in plan[-1].items() if k == "trust_region"}
+        p.solve_options["schedule"] = list(plan) + [dict(params={**last, "tau_dense": f}, level=2, **tr)
+                                                    for f in DENSE_RAMP]
     p.success_criteria = _criteria(name) if name == "roll" else _RestCriteria(_criteria(name), p)
     return p
 

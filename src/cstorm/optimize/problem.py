@@ -223,6 +223,12 @@ class MotionProblem:
         self.costs = list(costs) if costs is not None else [_costs.TorqueSquared()]
         self.constraints = list(constraints or [])
         self.env, self.contact = env, contact  # before the terms' check(), which may read them
+        # constraint grid (before the terms' check(), which may read it): every `stride`-th step, both ends included
+        stride = max(1, self.n_steps // max(1, int(n_path_samples)))
+        idx = np.arange(0, self.n_steps + 1, stride)
+        if idx[-1] != self.n_steps:
+            idx = np.append(idx, self.n_steps)
+        self.sample_idx = idx
         for c in self.costs:
             if not isinstance(c, _costs.Cost):
                 raise ProblemError(f"MotionProblem: costs must be cost terms (cstorm.optimize.costs), got {c!r}")
@@ -238,12 +244,6 @@ class MotionProblem:
         self.segment = segment
         self.q_bound, self.v_bound = float(q_bound), float(v_bound)
         self._contact_fn = self._make_contact_fn(env, contact, contact_fn)
-        # constraint grid: every `stride`-th step, both ends included
-        stride = max(1, self.n_steps // max(1, int(n_path_samples)))
-        idx = np.arange(0, self.n_steps + 1, stride)
-        if idx[-1] != self.n_steps:
-            idx = np.append(idx, self.n_steps)
-        self.sample_idx = idx
         # boundary conditions (static pattern) and sizes
         self._bc_pattern = dict(q0=True, v0=True, a0=self.rest_start, q1=self.qa_final is not None,
                                 v1=self.va_final is not None or self.rest_end, a1=self.rest_end)
@@ -540,10 +540,13 @@ class MotionProblem:
 
     def _samples(self, tr):
         """The trajectory on the constraint grid: dict ``t (S,)``, ``q, v, a, tau`` and,
-        with contact, ``contact`` (the per-point contact data at the samples)."""
+        with contact, ``contact`` (the per-point contact data at the samples); ``steps``:
+        the same fields (no contact) on every integration step, ``(N+1, ...)``, for terms
+        that aggregate over all steps (``TorqueLimits(dense=True)``)."""
         idx = self.sample_idx
         samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
-                       tau=tr["tau"][idx])
+                       tau=tr["tau"][idx], steps=dict(t=jnp.asarray(self.t), q=tr["q"], v=tr["v"], a=tr["a"],
+                                                      tau=tr["tau"]))
         if tr.get("contact") is not None:
             samples["contact"] = jax.tree_util.tree_map(lambda y: y[idx], tr["contact"])
         return samples

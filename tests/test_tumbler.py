@@ -29,6 +29,14 @@ def test_sequence_structure():
         assert s.success_criteria
     labels = cs.contact_labels(seq.segments[0].model, seq.segments[0].env)
     assert {g for g, _, _ in labels} == {"torso", "legs", "arms", "foot", "palm"}
+    # in the sequence the roll's joints end as in ROLL_END (the standing plan's start), by
+    # construction; the passive base ends wherever the roll takes it
+    roll = seq.segments[1]
+    np.testing.assert_allclose(roll.qa_final, T.ROLL_END[0][3:])
+    np.testing.assert_allclose(roll.va_final, T.ROLL_END[1][3:])
+    assert T.tumbler_segment("roll").qa_final is None
+    with pytest.raises(ValueError, match="roll_end"):
+        T.tumbler_segment("roll", roll_end="pinned")
 
 
 @pytest.mark.parametrize("posture", ["start_q", "handstand_q"])

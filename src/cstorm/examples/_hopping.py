@@ -276,7 +276,10 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
       integration step (not only at the constraint's samples) <= 1 (+1e-6): the motors can
       deliver the motion.
     """
+    from ..report import torque_check
+
     tr = solution.trajectory
+    tq = torque_check(problem, solution)
     m = problem.model
     ix, iz, ip = (m.joint_q(n).start for n in ("root_x", "root_z", "root_pitch"))
     vp = np.array(problem.layout.vp_idx, int)
@@ -295,19 +298,9 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
         final_base_speed=criterion(np.max(np.abs(v[-1, vp])), vel_tol, np.max(np.abs(v[-1, vp])) <= vel_tol),
         final_base_accel=criterion(np.max(np.abs(a[-1, vp])), acc_tol, np.max(np.abs(a[-1, vp])) <= acc_tol),
         max_penetration=criterion(max(0.0, -float(np.min(d))), max_penetration, -float(np.min(d)) <= max_penetration),
-        torque_limits=criterion(worst_torque_ratio(problem, tr), 1.0, worst_torque_ratio(problem, tr) <= 1.0 + 1e-6),
+        torque_limits=criterion(tq["worst_ratio"], 1.0, tq["ok"]),
     )
     return out
-
-
-def worst_torque_ratio(problem, trajectory):
-    """The largest ``|tau_i| / limit_i`` over every step of ``trajectory`` (a dict with
-    ``tau`` (N+1, nv)) and the active joints with a finite effort limit (0 if none)."""
-    lim = np.asarray(problem.model.effort_limit, float)
-    idx = [i for i in problem.layout.va_idx if np.isfinite(lim[i]) and lim[i] > 0]
-    if not idx:
-        return 0.0
-    return float(np.max(np.abs(np.asarray(trajectory["tau"], float)[:, idx]) / lim[idx]))
 
 
 def keyframe_guess(keyframes, t_final, names):

@@ -368,9 +368,11 @@ HANDSTAND_DT = 1.25e-3
 
 
 #: with ``dense_torque``: the factor on the effort limits of the every-step torque
-#: constraint (level 2), stage by stage after the segment's plan (the sampled solutions
-#: need up to 2.6x, handstand, and 2.9x, roll, at their impacts)
-DENSE_RAMP = (3.0, 2.2, 1.6, 1.25, 1.0)
+#: constraint (level 2), stage by stage after the segment's plan, per segment (the
+#: sampled solutions need 2.6x, handstand, 2.9x, roll, and 1.04x, standing, at their
+#: impacts; a ramp that starts far looser than needed lets the first stage wander off)
+DENSE_RAMPS = dict(handstand=(3.0, 2.6, 2.2, 1.9, 1.6, 1.4, 1.25, 1.1, 1.0), roll=(3.0, 2.2, 1.6, 1.25, 1.0),
+                   standing=(1.1, 1.0), start=(1.1, 1.0))
 
 
 def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None, pitch_trust=None):
@@ -388,7 +390,7 @@ def _plan(pitch_ramp=(), rest_ramp=REST_RAMP, rest_trust=None, pitch_trust=None)
 
 def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = None, t_final: float | None = None, q0=None,
                     v0=None, model=None, shooting: int = 1, guess: str = "default", n_path_samples: int = 40,
-                    dense_torque: bool = False):
+                    dense_torque: bool = False, roll_end: str = "free", dense_ramp=None):
     """One segment of the tumbler sequence as a `MotionProblem` (see the module docstring).
 
     Args:
@@ -401,6 +403,14 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         sequence the previous segment's end state replaces it).
       shooting: multiple-shooting intervals (see `cstorm.optimize.problem`).
       n_path_samples: about how many grid points the torque limits are sampled at.
+      dense_torque: also the motor limits on *every* integration step (level 2,
+        `ScaledTorqueLimits` with ``dense=True`` and the factor ``tau_dense``), tightened
+        after the segment's plan along ``dense_ramp`` (default `DENSE_RAMPS` of the
+        segment). Without it the limits hold only at the ~40 samples, and the contact
+        impacts between them need more than the motors have.
+      roll_end: the roll's joints at its end: ``"free"`` (default) or ``"nominal"``
+        (hip and shoulder positions and velocities of `ROLL_END`, by construction: the
+        start the standing segment's guess and plan are tuned for; `tumbler` uses it).
       guess: ``"default"`` (the keyframes documented at each segment), or for the
         handstand ``"bridge"`` (`BRIDGE_KEYFRAMES` with `bridge_nodes` as the nodes' guess;
         needs ``shooting > 1``) with the terminal pitch at pi from the first stage.
@@ -411,6 +421,8 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     env, contact = _env_contact()
     common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=n_path_samples,
                   shooting=shooting)
+    if roll_end not in ("free", "nominal"):
+        raise ValueError(f"tumbler_segment: roll_end must be 'free' or 'nominal', got {roll_end!r}")
     if guess not in ("default", "bridge") or (guess == "bridge" and (name != "handstand" or shooting < 2)):
         raise ValueError(f"tumbler_segment: guess={guess!r} is not available for {name!r} with shooting={shooting} "
                          "(guesses: 'default'; 'bridge' for the handstand with shooting > 1)")
@@ -448,7 +460,12 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
                 K.TerminalConstraint(lambda q, v, prm: 0.1 - q[1], kind="ineq", stage=0, name="torso on ground"),
                 K.TerminalConstraint(lambda q, v, prm: v[2] - 1.0, kind="ineq", stage=1, name="still rolling"),
                 ScaledTorqueLimits("tau_factor", stage=1, name="torque limits")] + dense
-        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, constraints=cons,
+        # roll_end="nominal": the joints end as in ROLL_END (hip, shoulder; positions and
+        # velocities, by construction), the state the standing segment's plan is tuned for
+        pin = {} if roll_end == "free" else dict(
+            q_final_active=dict(zip(("hip", "shoulder"), ROLL_END[0][3:])),
+            v_final_active=dict(zip(("hip", "shoulder"), ROLL_END[1][3:])))
+        p = MotionProblem(model, ["hip", "shoulder"], T, n_ctrl, dt, q0, v0, constraints=cons, **pin,
                           params={"pitch": 1.5 * np.pi - 0.2, "tau_factor": 1.0, **dense_params},
                           initial_guess=keyframe_guess(ROLL_KEYFRAMES, T, ("hip", "shoulder")), **common)
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=40, first_step=0.1, trust_region=0.5)
@@ -474,12 +491,12 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         p.solve_options.update(intermediate_tol=1e-6, intermediate_max_iter=60, first_step=0.05, trust_region=0.05)
     else:
         raise ValueError(f"unknown tumbler segment {name!r}; segments are {SEGMENTS}")
-    if dense_torque:  # after the plan, the limits on every step, tightened along DENSE_RAMP
+    if dense_torque:  # after the plan, the limits on every step, tightened along DENSE_RAMPS
         plan = p.solve_options.get("schedule") or [dict(params={}, level=0), dict(params={}, level=1)]
         last = dict(plan[-1].get("params", {}))
         tr = {k: v for k, v in plan[-1].items() if k == "trust_region"}
         p.solve_options["schedule"] = list(plan) + [dict(params={**last, "tau_dense": f}, level=2, **tr)
-                                                    for f in DENSE_RAMP]
+                                                    for f in (DENSE_RAMPS[name] if dense_ramp is None else dense_ramp)]
     p.success_criteria = _criteria(name) if name == "roll" else _RestCriteria(_criteria(name), p)
     return p
 
@@ -538,6 +555,8 @@ def tumbler(n_ctrl: int | None = None, dt: float | None = None):
         kw = {}
         if name == "standing":  # the roll's measured end; in the sequence the roll's actual end
             kw = dict(q0=ROLL_END[0], v0=ROLL_END[1])
+        if name == "roll":  # the joints end as in ROLL_END: the standing plan's start (see roll_end)
+            kw = dict(roll_end="nominal")
         segs.append(tumbler_segment(name, n_ctrl=n_ctrl, dt=dt, model=model, **kw))
     return MotionSequence(segs, name="tumbler")
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # cstorm's main job on a fresh machine: make a virtual environment, install cstorm, solve
-# the demo motion (the Luxo lamp's hop) and write its files to ./cstorm-out/demo (or $1).
+# the demo motion (the tumbling robot: start -> handstand -> roll -> standing -> start) and
+# write its files to ./cstorm-out/demo (or $1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}

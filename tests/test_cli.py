@@ -191,13 +191,14 @@ def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
 
 def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
     """`cstorm demo` writes the demo robot's description and then runs `cstorm solve` on
-    the demo problem (the Luxo hop). CI runs that path with --guess on this module's
-    compiled acrobot as a stand-in (the Luxo rollout alone would compile for minutes on a
-    2-core machine); test_demo_solves_the_luxo_hop (slow) runs the real demo."""
+    the demo problem (the tumbler sequence). CI runs that path with --guess on this
+    module's compiled acrobot as a stand-in (the tumbler's four segments alone would
+    compile for minutes on a 2-core machine); test_demo_solves_the_tumbler_sequence (slow)
+    runs the real demo."""
     from cstorm import examples
     from cstorm.viz import demo as viz_demo
 
-    assert viz_demo.DEMO_PROBLEM == "luxo" and "luxo" in cs.examples.names()
+    assert viz_demo.DEMO_PROBLEM == "tumbler" and "tumbler" in cs.examples.names()
     p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
     monkeypatch.setitem(examples._registry(), "standin", lambda: p)
     monkeypatch.setattr(viz_demo, "DEMO_PROBLEM", "standin")
@@ -212,14 +213,14 @@ def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_demo_solves_the_luxo_hop(tmp_path):
-    """The real main demo (what `bash scripts/demo.sh` runs): the Luxo hop solved with
-    every success criterion met (~4-6 min on a loaded 2-core machine)."""
+def test_demo_solves_the_tumbler_sequence(tmp_path):
+    """The real main demo (what `bash scripts/demo.sh` runs): the tumbler's four segments
+    solved chained, every segment's success criteria met (~6-8 min on a 2-core machine)."""
     rc, stdout, _ = _run(["demo", "--out", str(tmp_path), "--json"])
     s = _one_json(stdout)
-    assert rc == 0 and s["success"] and s["problem"] == "luxo", s["message"]
+    assert rc == 0 and s["success"] and s["problem"] == "tumbler", s["message"]
+    assert [g["problem"] for g in s["segments"]] == ["handstand", "roll", "standing", "start"]
     assert all(c["ok"] for c in s["criteria"].values()) and s["fidelity"]["ok"]
-    assert s["criteria"]["forward_distance"]["value"] >= 0.16
-    assert "joint 'neck': revolute" in (tmp_path / "luxo_info.txt").read_text()
+    assert "joint 'shoulder': revolute" in (tmp_path / "tumbler_info.txt").read_text()
     for f in ("summary.json", "solution.npz", "trajectory.csv", "contacts.png", "paths.png", "animation.gif"):
         assert os.path.getsize(tmp_path / f) > 1000, f

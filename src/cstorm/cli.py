@@ -70,7 +70,7 @@ def _model_json(model):
 
 def cmd_demo(args):
     """The main demo: describe the demo robot, then solve its shipped motion problem
-    (the Luxo lamp's hop, `cstorm.viz.demo.DEMO_PROBLEM`) exactly as ``cstorm solve``
+    (the tumbler sequence, `cstorm.viz.demo.DEMO_PROBLEM`) exactly as ``cstorm solve``
     does and write its outputs (summary.json, solution.npz, trajectory.csv, plots,
     animation) to ``--out``. Exit codes as for ``cstorm solve``."""
     from .viz import demo as viz_demo
@@ -78,7 +78,8 @@ def cmd_demo(args):
     out = args.out
     os.makedirs(out, exist_ok=True)
     problem, _ = resolve_problem(viz_demo.DEMO_PROBLEM)
-    info = viz_demo.write_model_info(out, problem.model)
+    model = problem.model if hasattr(problem, "model") else problem.segments[0].model  # a MotionSequence
+    info = viz_demo.write_model_info(out, model)
     if not args.json:
         print(info + "\n", file=sys.stderr)
     solve_args = argparse.Namespace(
@@ -336,10 +337,13 @@ def build_parser():
     pi.add_argument("--floating-base", choices=["free", "planar"], default=None)
     pi.add_argument("--json", action="store_true")
     pi.set_defaults(fn=cmd_info)
-    pd = sub.add_parser("demo", help="solve the demo motion (the Luxo lamp's hop) and write its files",
-                        description="The main demo: write the Luxo lamp's model description (luxo_info.txt), "
-                                    "solve its hop (as `cstorm solve luxo`) and write summary.json, "
-                                    "solution.npz, trajectory.csv, PNG plots and animation.gif to --out.")
+    pd = sub.add_parser("demo", help="solve the demo motion (the tumbling robot's four segments) and write its "
+                                     "files",
+                        description="The main demo: write the tumbling robot's model description "
+                                    "(tumbler_info.txt), solve start -> handstand -> roll -> standing -> start (as "
+                                    "`cstorm solve tumbler`, 6-8 min on 2 cores) and write summary.json, "
+                                    "solution.npz, trajectory.csv, PNG plots and animation.gif to --out. "
+                                    "`cstorm solve luxo` is a one-minute alternative.")
     pd.add_argument("--out", default=os.path.join("cstorm-out", "demo"), help="output directory "
                                                                                "(default ./cstorm-out/demo)")
     pd.add_argument("--guess", action="store_true", help="do not solve: write the outputs of the initial guess "

@@ -52,22 +52,24 @@ forward at least one foot length (0.16 m, end to end), with a flight phase (ever
 point 1 cm up at some instant, not scheduled), land at rest in the same posture; cost
 ``integral 1/2 |tau|^2 dt``; 1.0 s, RK4 at 2 ms, 14 control points per joint (24
 variables), SLSQP along the default solve plan (11 stages, see `hop_problem`),
-``first_step = 0.1``. Initial guess: `KEYFRAMES` (posture level).
+``first_step = 0.1``; then the motor limits on every integration step (``dense_torque``,
+`_hopping.DENSE_RAMP`: 1.25x, 1.1x, 1x the limits at the 0.5 mm landing tolerance) and the
+final 1e-6 stage, 15 stages in all. Initial guess: `KEYFRAMES` (posture level).
 
-Measured (`cs.solve(cs.examples.luxo())`, 2-core machine, load ~2): success, every
-criterion met. 78 SLSQP iterations, 55 s including a 19 s compile. Cost 0.9947 N^2 m^2
-s, constraint violation 5e-9. Forward 0.1612 m; longest flight 0.224 s; end pose errors
-1.0e-6 m (height) and 1.0e-6 rad (pitch); base speed 1.0e-6; base acceleration 9.0e-3
-m/s^2 (criterion 1e-2); deepest contact point 6.3 mm below the surface. Fidelity: the
-final passive state is 1.1e-6 m / 0.0088 deg from the plan (velocities 2.9e-4 m/s and
-0.29 deg/s), checked with RK4 at 0.5 ms and with DOP853; the time step is within RK4's
-limit (2.76 ms) along the whole solution.
+Measured (`cstorm solve luxo`, 2-core machine, load ~1, session 8): success, 9/9 criteria.
+108 SLSQP iterations, 70 s including a 19 s compile (1.5 min with the fidelity check and
+the pictures). Cost 0.8647 N^2 m^2 s, constraint violation 6e-10. Forward 0.1600 m;
+longest flight 0.222 s; end pose errors 1.0e-6 m (height) and 3e-7 rad (pitch); base
+speed 1.0e-6; base acceleration 9.2e-3 m/s^2 (criterion 1e-2); deepest contact point 6.4
+mm below the surface. Torques within the limits on every step: the elbow peaks at 0.99x
+its 6 N m at the landing (t = 0.63 s). Fidelity: the final passive state is 1.6e-5 m /
+0.0075 deg from the plan (velocities 2.5e-4 m/s and 0.25 deg/s), checked with RK4 at
+0.5 ms and with DOP853; the time step is within RK4's limit (2.93 ms) along the whole
+solution.
 
-Not yet met (measured in session 7 with `cstorm.report.torque_check`, which reads every
-step): the torque limits are sampled constraints (`hop_problem`, about 50 samples), and
-between two samples, at the landing, the elbow needs 6.69 N m, 1.11x its 6 N m limit
-(base 4.72 of 6, neck 1.96 of 2). ``cstorm solve`` now reports this under
-``torque_limits`` in summary.json and warns; the fix is a denser sampling of the limits.
+With the limits only sampled (``dense_torque=False``, the problem until session 7): 78
+iterations, cost 0.9947, but between two samples at the landing the elbow needed 6.69 N
+m, 1.11x its limit. The dense stages cost 30 iterations and found a cheaper hop.
 
 Before session 6 the problem ran at 4 ms with ``v_max = 0.1``. It solved in 70
 iterations with cost 1.148, but on today's JAX/CPU its last stage (land_tol 1e-6)

@@ -42,7 +42,10 @@ by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
 2. ``roll`` (1.5 s): from the handstand, tip over forward and roll along the back:
    at the end the torso lies on the ground (its centre lower than 0.1 m) with pitch
    >= 3 pi / 2 - 0.2 and still rotating forwards (pitch rate >= 1 rad/s), joints
-   free. Level 0: the pose; level 1: the pitch rate and the torque limits. Guess
+   free (``roll_end="free"``, the segment alone) or, in the `tumbler` sequence, ending
+   at `ROLL_END`'s joint positions and velocities (``roll_end="nominal"``, by
+   construction: the start the standing segment's guess and plan are tuned for). Level
+   0: the pose; level 1: the pitch rate and the torque limits. Guess
    `ROLL_KEYFRAMES` (rolled out from the nominal handstand it tips forward and lands on
    its back, pitch 4.76, but stops: pitch rate -0.3 rad/s at T).
 3. ``standing`` (2.0 s): from the roll, come up onto the feet: pitch = 2 pi,
@@ -56,7 +59,8 @@ by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
 
 Joint position limits hold by construction (control points bounded by the limits; see
 `cstorm.optimize.solve.variable_bounds`); torque limits are sampled inequalities
-(`ScaledTorqueLimits`, 42 samples).
+(`ScaledTorqueLimits`, 42 samples), and with ``dense_torque=True`` also hold on every
+integration step (a level after the plan, `DENSE_RAMPS`; not the default, see Status).
 
 Default initial guesses: posture-level keyframes joined by smoothstep ramps
 (`_hopping.keyframe_guess`), documented at each constant. Where a guess counterbalances
@@ -67,6 +71,17 @@ the arms without it tips the robot onto its face.
 
 Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
 ------------------------------------------------------------------------
+- The whole sequence (`tumbler`, ``cstorm solve tumbler``, the main demo since session
+  8): **solved chained**, every segment from the previous one's end: 24/24 criteria,
+  652 SLSQP iterations, 451 s including 87 s of compile (load ~3, two other solves
+  running), cost 13.233 + 3.992 + 13.071 + 0.155 = 30.45. What made it chain: the roll
+  ends with its joints at `ROLL_END`'s (``roll_end="nominal"``). With free joints the
+  roll from the solved handstand ended with the hip at -1.82 rad and -4.6 rad/s (against
+  -1.01 and +2.09) and standing's last stage oscillated and fell; with them pinned the
+  roll solves (277 iterations, cost 3.99; its base ends 0.2 mm and 0.3 mrad from
+  `ROLL_END`'s, pitching at 1.23 rad/s instead of 1.00, 0.27 m further along x, which
+  flat ground makes irrelevant) and
+  standing from there solves in 122 iterations.
 - ``start`` (standing, arms overhead -> arms down, at rest): **solved** from the default
   guess by the plan above: 78 SLSQP iterations, 43-54 s including a 15 s compile, cost
   0.1551 N^2 m^2 s, violation 3e-9; every criterion holds (pitch 3.1 mrad from upright,
@@ -113,17 +128,28 @@ Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
   straight) and a leg swing with a pitch ramp had stalled at violation 0.6-1.6 (the
   robot stays on its back). In CI.
 
-Torque limits between samples (measured in session 7 with `cstorm.report.torque_check`,
-which reads every step; `ScaledTorqueLimits` samples 42 points): at the contact impacts
-the splines' accelerations need far more than the motors have for a few ms. The
-handstand's landing on the hands: hip 17.5 N m (limit 12), shoulder 21.0 N m (limit 8),
-2.6x; the roll's landing on the back: hip 34.8 N m, 2.9x; the standing segment: shoulder
-8.12 N m, 1.015x; ``start`` is within its limits (0.59 N m). So the handstand, roll and
-standing motions are not yet feasible for these motors. ``cstorm solve`` reports it under
-``torque_limits`` in summary.json and warns. Sampling every step (``n_path_samples``)
-from the handstand's guess: the 4x-torque stage stalls at violation 6.3 (the guess's own
-landing needs more), so the fix needs a softer landing in the guess or a continuation
-on the sampling as well.
+Torque limits between samples (`cstorm.report.torque_check`, which reads every step;
+`ScaledTorqueLimits` samples 42 points): at the contact impacts the splines'
+accelerations need far more than the motors have for a few ms. In the chained sequence
+(session 8): the handstand's landing on the hands, shoulder 2.62x its 8 N m; the roll's
+landing on the back, hip 2.77x its 12 N m; standing, shoulder 1.04x; ``start`` 0.07x. So
+the handstand, roll and standing motions are not yet feasible for these motors.
+``cstorm solve`` reports it under ``torque_limits`` in summary.json and warns.
+
+``dense_torque=True`` (the limits on every step, `constraints.TorqueLimits` with
+``dense``, tightened along `DENSE_RAMPS` after the plan), measured in session 8:
+- ``roll`` from the solved handstand's end, joints pinned: **solved within the limits on
+  every step**, 48 iterations, 51 s, cost 1.88 (less than the sampled plan's 3.99),
+  hip 0.56x, shoulder 0.96x. But standing from its end (0.25 mm and 1.8 mrad from the
+  sampled roll's end, pitching at 1.00 rad/s instead of 1.23) stalls in its first
+  stages: standing's plan is that sensitive to its start.
+- ``standing`` from the sampled roll's end: solved within the limits on every step, 403
+  iterations, 391 s (ramp 3.0 -> 1.0; load ~3), cost 11.61, shoulder 0.997x.
+- ``start`` from there: solved, 105 iterations, 69 s, cost 0.140.
+- ``handstand``: the plan converges to 2.2x, then stalls at 1.9x (iteration limit, then
+  violation 0.2-0.4 at 1.6x): the dive lands on the hands too hard, and a softer landing
+  needs a different guess.
+Hence not the default yet.
 
 Why earlier sessions failed on ``start``: they planned at 4 ms, where the base velocities
 were biased by RK4's instability on the friction's viscous mode (see `DT`), so the rest

@@ -1,21 +1,22 @@
 """The main demo (``cstorm demo``, ``bash scripts/demo.sh``): a real optimal contact
 motion, solved and written to files a person can look at.
 
-Today the demo is the Luxo lamp's hop (`cstorm.examples.luxo`): the planar desk lamp
-crouches, jumps one foot length forward (0.16 m) with a flight phase and lands at rest,
-with minimal integral of squared torques, solved by SLSQP with exact gradients through
-the smooth contact model. The demo writes the robot's description (``luxo_info.txt``:
+The demo is the draft paper's tumbling robot (`cstorm.examples.tumbler`): a
+`MotionSequence` of four segments, start -> handstand -> roll -> standing -> start, each
+solved by SLSQP with exact gradients through the smooth contact model from the state
+where the previous one ended, with minimal integral of squared torques (about 6-8 minutes
+on a 2-core machine). The demo writes the robot's description (``tumbler_info.txt``:
 tree, joints, masses, inertias, collision shapes) and then exactly what ``cstorm solve
-luxo`` writes: ``summary.json``, ``solution.npz``, ``trajectory.csv``, PNG plots and
-``animation.gif``. The tumbler sequence (`cstorm.examples.tumbler`) becomes the demo
-once it solves end to end (it does not yet).
+tumbler`` writes: ``summary.json``, ``solution.npz``, ``trajectory.csv``, PNG plots and
+``animation.gif``. ``cstorm solve luxo`` is the one-minute alternative (the Luxo lamp's
+hop, the demo until session 8).
 """
 
 from __future__ import annotations
 
 import os
 
-DEMO_PROBLEM = "luxo"  # the tumbler sequence takes its place once it solves end to end
+DEMO_PROBLEM = "tumbler"
 
 
 def write_model_info(out: str, model) -> str:

@@ -801,7 +801,7 @@ def torque_check(problem, solution) -> dict:
     ok = all(r["ok"] for r in out_segs)
     msg = ("every active joint's torque is within its effort limit on every step" if ok else
            f"{w['segment']}: {w['joint']} needs {w['worst_ratio']:.2f}x its effort limit at t = {w['t']:.3f} s "
-           "(between the samples of the torque-limit constraint; sample it more densely, n_path_samples)")
+           "(between the samples of a sampled torque-limit constraint; TorqueLimits(dense=True) enforces every step)")
     return dict(ok=ok, worst_ratio=w["worst_ratio"] if w else 0.0, joint=w["joint"] if w else None,
                 t=w["t"] if w else None, segment=w["segment"] if w else None, message=msg, segments=out_segs)
 

@@ -73,13 +73,13 @@ def cmd_demo(args):
     (the tumbler sequence, `cstorm.viz.demo.DEMO_PROBLEM`) exactly as ``cstorm solve``
     does and write its outputs (summary.json, solution.npz, trajectory.csv, plots,
     animation) to ``--out``. Exit codes as for ``cstorm solve``."""
+    from .report import problem_segments
     from .viz import demo as viz_demo
 
     out = args.out
     os.makedirs(out, exist_ok=True)
     problem, _ = resolve_problem(viz_demo.DEMO_PROBLEM)
-    model = problem.model if hasattr(problem, "model") else problem.segments[0].model  # a MotionSequence
-    info = viz_demo.write_model_info(out, model)
+    info = viz_demo.write_model_info(out, problem_segments(problem)[0].model)
     if not args.json:
         print(info + "\n", file=sys.stderr)
     solve_args = argparse.Namespace(

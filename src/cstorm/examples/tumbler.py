@@ -518,7 +518,8 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     else:
         raise ValueError(f"unknown tumbler segment {name!r}; segments are {SEGMENTS}")
     if dense_torque:  # after the plan, the limits on every step, tightened along DENSE_RAMPS
-        plan = p.solve_options.get("schedule") or [dict(params={}, level=0), dict(params={}, level=1)]
+        # (no schedule: `cs.solve`'s default, one stage per level, before the dense level)
+        plan = p.solve_options.get("schedule") or [dict(params={}, level=k) for k in range(p.n_levels - 1)]
         last = dict(plan[-1].get("params", {}))
         tr = {k: v for k, v in plan[-1].items() if k == "trust_region"}
         p.solve_options["schedule"] = list(plan) + [dict(params={**last, "tau_dense": f}, level=2, **tr)

@@ -141,7 +141,7 @@ class TorqueLimits(Constraint):
     ``factor`` (a number or a problem parameter's name, default 1) lets a solve plan start
     with the limits relaxed and tighten them to 1. Inequalities, ``2 S k`` values: the
     upper then the lower bounds, sample-major, in N m, or with ``normalized=True``
-    dimensionless (``1 - tau_i / (factor limit_i)``: O(1) like the other constraints', which
+    dimensionless (``factor - tau_i / limit_i``: O(1) like the other constraints', which
     SLSQP needs next to metre- and radian-sized terms; a 200 N m motor's raw values made it
     report "inequality constraints incompatible").
 
@@ -188,12 +188,15 @@ class TorqueLimits(Constraint):
     def values(self, ctx, end, samples):
         lim = ctx.model.effort_limit[self._idx] if self.limits is None else \
             jnp.broadcast_to(resolve(self.limits, ctx.params), (len(self._idx),))
-        if not (isinstance(self.factor, (int, float)) and self.factor == 1.0):
-            lim = lim * resolve(self.factor, ctx.params)
-        hi, lo = self.ratios(samples, lim)
-        up, dn = 1.0 - hi, 1.0 - lo
-        if not self.normalized:
-            up, dn = lim * up, lim * dn
+        f = resolve(self.factor, ctx.params)
+        if self.normalized or self.dense:
+            hi, lo = self.ratios(samples, lim)
+            up, dn = f - hi, f - lo  # factor - |tau| / limit
+            if not self.normalized:
+                up, dn = lim * up, lim * dn
+        else:  # N m, computed as factor limit -/+ tau
+            tau = samples["tau"][:, self._idx]
+            up, dn = f * lim - tau, f * lim + tau
         return jnp.concatenate([up.ravel(), dn.ravel()])
 
     def describe(self):

@@ -111,14 +111,15 @@ def test_capsule_inertia_is_mujocos():
 
 
 def test_multiple_shooting_default_and_bounds():
-    """The default problem uses 4 shooting intervals; the node states (18 variables after
-    the 18 control points) are unbounded, the control points keep single shooting's
-    trust-region bounds, and the plan is the same."""
-    p4, p1 = H.hopper(), H.hopper(shooting=1)
-    assert p4.shooting == 4 and p1.shooting == 1
-    assert p4.n_vars == p1.n_vars + 18 == 36
+    """The default problem uses 5 shooting intervals; the node states (24 variables after
+    the 33 control points: 16 per hinge less the 3 start and 2 end conditions; the end
+    posture is free within `END_POSTURE_TOL`) are unbounded, the control points keep
+    single shooting's trust-region bounds, and the plan is the same."""
+    p5, p1 = H.hopper(), H.hopper(shooting=1)
+    assert p5.shooting == 5 and p1.shooting == 1
+    assert p5.n_vars == p1.n_vars + 24 == 57
     ns = p1.n_vars
-    np.testing.assert_array_equal(p4.x_bounds[0][:ns], p1.x_bounds[0])
-    np.testing.assert_array_equal(p4.x_bounds[1][:ns], p1.x_bounds[1])
-    assert np.all(np.isneginf(p4.x_bounds[0][ns:])) and np.all(np.isposinf(p4.x_bounds[1][ns:]))
-    assert p4.solve_options == p1.solve_options
+    np.testing.assert_array_equal(p5.x_bounds[0][:ns], p1.x_bounds[0])
+    np.testing.assert_array_equal(p5.x_bounds[1][:ns], p1.x_bounds[1])
+    assert np.all(np.isneginf(p5.x_bounds[0][ns:])) and np.all(np.isposinf(p5.x_bounds[1][ns:]))
+    assert p5.solve_options == p1.solve_options

@@ -101,6 +101,20 @@ def test_keyboard_interrupt_returns_best_iterate(problem):
     assert np.isfinite(s.cost) and s.trajectory["q"].shape[0] == problem.n_steps + 1
 
 
+def test_schedule_stage_own_tol_and_max_iter(problem):
+    """A schedule stage's ``max_iter`` and ``tol`` replace the solve's (and the
+    intermediate ones) for that stage only; unknown stage keys are an error."""
+    from cstorm.errors import InputError
+
+    sched = [dict(params={}, level=0, max_iter=3), dict(params={}, level=0, max_iter=2, tol=1e-3)]
+    s = solve(problem, schedule=sched, max_iter=300)
+    per_stage = [len([h for h in s.history if h["stage"] == k]) for k in (0, 1)]
+    assert per_stage[0] <= 3 and per_stage[1] <= 2, per_stage
+    assert [st["iterations"] for st in s.info["stages"]] == per_stage
+    with pytest.raises(InputError, match="unknown keys"):
+        solve(problem, schedule=[dict(params={}, level=0, maxiter=3)])
+
+
 def test_checkpoint_and_resume(problem, solution, tmp_path):
     ck = tmp_path / "ck.npz"
 

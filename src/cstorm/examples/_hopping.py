@@ -74,12 +74,17 @@ class AtRest(Constraint):
     accelerations multiplied by ``accel_scale`` s). With ``tol`` (a number or a problem
     parameter's name) they become the inequalities ``|value| <= tol`` instead (a landing
     tolerance that a solve plan can tighten: switching on equalities that are far from
-    satisfied makes SLSQP take radian-sized steps)."""
+    satisfied makes SLSQP take radian-sized steps); ``accel_tol`` (likewise) gives the
+    accelerations their own tolerance, ``|a_p| <= accel_tol`` (m/s^2, rad/s^2; the values
+    still multiplied by ``accel_scale``)."""
 
     kind = "eq"
 
-    def __init__(self, acceleration=True, accel_scale=0.1, tol=None, stage=0, name="at_rest"):
+    def __init__(self, acceleration=True, accel_scale=0.1, tol=None, stage=0, name="at_rest", accel_tol=None):
         self.acceleration, self.accel_scale, self.tol = bool(acceleration), float(accel_scale), tol
+        self.accel_tol = accel_tol
+        if accel_tol is not None and (tol is None or not self.acceleration):
+            raise ProblemError("AtRest: accel_tol needs acceleration=True and a velocity tol")
         self.kind = "eq" if tol is None else "ineq"
         self.stage, self.name = int(stage), name
 
@@ -89,7 +94,12 @@ class AtRest(Constraint):
             raise ProblemError("AtRest: the problem has no passive DoFs")
 
     def values(self, ctx, end, samples):
-        out = [end["v"][self._vp]]
+        v = end["v"][self._vp]
+        if self.accel_tol is not None:
+            tv, ta = resolve(self.tol, ctx.params), resolve(self.accel_tol, ctx.params)
+            a = end["a"][self._vp]
+            return jnp.concatenate([tv - v, tv + v, self.accel_scale * (ta - a), self.accel_scale * (ta + a)])
+        out = [v]
         if self.acceleration:
             out.append(self.accel_scale * end["a"][self._vp])
         e = jnp.concatenate(out)
@@ -99,8 +109,11 @@ class AtRest(Constraint):
         return jnp.concatenate([tol - e, tol + e])
 
     def describe(self):
-        return {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
-                "tol": self.tol, "stage": self.stage}
+        d = {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
+             "tol": self.tol, "stage": self.stage}
+        if self.accel_tol is not None:  # only when used: earlier problems' hashes stay the same
+            d["accel_tol"] = self.accel_tol
+        return d
 
 
 class ForwardDistance(Constraint):
@@ -253,7 +266,7 @@ def flight_time(t, d, d_on):
 
 def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest, pose_tol_z=0.005,
                  pose_tol_pitch=np.radians(2.0), vel_tol=1e-3, acc_tol=1e-2, feas_tol=1e-6, max_penetration=0.01,
-                 d_on=None):
+                 d_on=None, hold=None):
     """Success criteria of a hop-and-land problem, from a `Solution`: a dict ``name ->
     dict(value, tol, ok)``:
 
@@ -269,7 +282,12 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
       ``max_penetration`` (no limbs through the floor);
     - ``torque_limits``: the largest ``|tau_i| / limit_i`` of the active joints on *every*
       integration step (not only at the constraint's samples) <= 1 (+1e-6): the motors can
-      deliver the motion.
+      deliver the motion;
+    - with ``hold`` (a dict ``duration`` s, ``pitch_tol`` rad, ``pos_tol`` m, ``v_tol``
+      m/s and rad/s): `_planar.hold_test`, the robot kept ``duration`` s more with its
+      joints locked stays put: ``holds_still_pitch``, ``holds_still_position`` (the
+      largest deviations from the final pose) and ``still_after_hold`` (the base speed at
+      the end of the hold).
     """
     from ..report import torque_check
 
@@ -295,6 +313,13 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
         max_penetration=criterion(max(0.0, -float(np.min(d))), max_penetration, -float(np.min(d)) <= max_penetration),
         torque_limits=criterion(tq["worst_ratio"], 1.0, tq["ok"]),
     )
+    if hold is not None:
+        from ._planar import hold_test
+
+        dev, pos, vend = hold_test(problem, solution, hold["duration"])
+        out.update(holds_still_pitch=criterion(dev, hold["pitch_tol"], dev <= hold["pitch_tol"]),
+                   holds_still_position=criterion(pos, hold["pos_tol"], pos <= hold["pos_tol"]),
+                   still_after_hold=criterion(vend, hold["v_tol"], vend <= hold["v_tol"]))
     return out
 
 
@@ -326,7 +351,8 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
                 w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
                 intermediate_max_iter=60, n_path_samples=50, trust=1.0, margin=1.0, first_step=None,
                 land_tol=1e-6, ramp=None, max_penetration=0.01, shooting=1, dense_torque=False,
-                dense_ramp=DENSE_RAMP):
+                dense_ramp=DENSE_RAMP, end_posture_tol=None, rest_accel=False, pose_tol=None, extra=(),
+                criteria_options=None, final_tol=None):
     """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
     that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
     root_z, root_pitch`` then the active joints) and ends in the same posture, at rest,
@@ -386,13 +412,19 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
     z_rest, pitch_rest = float(q_rest[model.joint_q("root_z").start]), float(q_rest[model.joint_q("root_pitch").start])
     prob = MotionProblem(
         model, active=active, t_final=t_final, n_ctrl=n_ctrl, dt=dt, q0=q_rest, env=Environment([ground()]),
-        contact=contact, q_final_active=q_rest[ia], rest_end=True, rest_start=True,
+        contact=contact, q_final_active=None if end_posture_tol is not None else q_rest[ia], rest_end=True,
+        rest_start=True,
         costs=[costs.TorqueSquared(weight=1.0), LandingPenalty("w_land", dict(root_z=z_rest, root_pitch=pitch_rest))],
         constraints=[
             ForwardDistance("distance"),
-            AtRest(acceleration=False, tol="land_tol", stage=1),
-            constraints.TerminalState("root_z", q=z_rest, kind="ineq", tol="land_tol", stage=1),
-            constraints.TerminalState("root_pitch", q=pitch_rest, kind="ineq", tol="land_tol", stage=1),
+            AtRest(acceleration=bool(rest_accel), tol="land_tol", stage=1,
+                   accel_tol="acc_tol" if rest_accel else None),
+            constraints.TerminalState("root_z", q=z_rest, kind="ineq", tol="pose_tol" if rest_accel else "land_tol",
+                                      stage=1),
+            constraints.TerminalState("root_pitch", q=pitch_rest, kind="ineq",
+                                      tol="pose_tol" if rest_accel else "land_tol", stage=1),
+        ] + ([constraints.TerminalState(n, q=float(q_rest[i]), kind="ineq", tol=float(end_posture_tol), stage=1)
+              for n, i in zip(active, ia)] if end_posture_tol is not None else []) + list(extra) + [
             constraints.JointLimits(list(active), velocity=False),
             ScaledTorqueLimits(),
             FlightClearance("clearance"),
@@ -400,7 +432,8 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         ] + ([ScaledTorqueLimits("tau_factor", dense=True, stage=2, name="torque_limits_every_step")]
              if dense_torque else []),
         params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
-                "land_tol": land_tol, **({"tau_factor": 1.0} if dense_torque else {})},
+                "land_tol": land_tol, **({"tau_factor": 1.0} if dense_torque else {}),
+                **({"acc_tol": 10 * land_tol, "pose_tol": pose_tol} if rest_accel else {})},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
     )
@@ -416,21 +449,28 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
     def criteria(solution):
         return hop_criteria(prob, solution, distance=distance, min_flight=min_flight, z_rest=z_rest,
-                            pitch_rest=pitch_rest, d_on=d_on, max_penetration=max_penetration)
+                            pitch_rest=pitch_rest, d_on=d_on, max_penetration=max_penetration,
+                            **(criteria_options or {}))
 
     prob.success_criteria = criteria
     if schedule is None:
         d0 = distance / 3.0
         ramp = RAMP if ramp is None else ramp
+        def at(entry):  # (fraction of the distance, land_tol[, acc_tol, pose_tol])
+            f, tl, *rest = entry
+            return dict(distance=distance * f, land_tol=tl, **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))
+
         schedule = [dict(params=dict(distance=d0, w_land=w_land * 0.01), level=0),
                     dict(params=dict(distance=d0, w_land=w_land * 0.1), level=0)] + [
-            dict(params=dict(distance=distance * f, land_tol=tl), level=1) for f, tl in ramp]
+            dict(params=at(e), level=1) for e in ramp]
         if dense_torque:  # the limits on every step, tightened at the ramp's last tolerance
-            schedule += [dict(params=dict(distance=distance, land_tol=ramp[-1][1], tau_factor=f), level=2)
-                         for f in dense_ramp]
-        schedule += [dict(params=dict(distance=distance, land_tol=land_tol, **({"tau_factor": 1.0} if dense_torque
-                                                                                else {})),
-                          level=2 if dense_torque else 1)]
+            schedule += [dict(params=dict(at(ramp[-1]), distance=distance, tau_factor=f), level=2) for f in dense_ramp]
+        if not rest_accel:  # (with rest_accel the ramp's last stage is the final one)
+            schedule += [dict(params=dict(distance=distance, land_tol=land_tol,
+                                          **({"tau_factor": 1.0} if dense_torque else {})),
+                              level=2 if dense_torque else 1)]
+    if schedule and final_tol is not None:
+        schedule[-1] = dict(schedule[-1], tol=float(final_tol))
     if schedule:
         prob.solve_options["schedule"] = schedule
         prob.solve_options.update(intermediate_tol=intermediate_tol, intermediate_max_iter=intermediate_max_iter)

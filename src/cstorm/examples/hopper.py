@@ -222,19 +222,42 @@ KEYFRAMES = (
 )
 
 
-#: the hopper's landing ramp (see `_hopping.hop_problem`): `_hopping.RAMP` up to the full
-#: distance at a 1 cm landing tolerance, then the tolerance tightened in small steps
-#: (halving it in one stage made SLSQP diverge; with shooting=4 the 1.5e-4 stage converges,
-#: the 1e-4 stage does not: see the module docstring)
-RAMP = ((1 / 3, 0.05), (2 / 3, 0.02), (5 / 6, 0.01), (0.91625, 0.01), (1.0, 0.01), (1.0, 0.007), (1.0, 0.005),
-        (1.0, 0.0035), (1.0, 0.0025), (1.0, 0.0018), (1.0, 0.0012), (1.0, 8e-4), (1.0, 5e-4), (1.0, 2.5e-4),
-        (1.0, 1.5e-4), (1.0, 1e-4))
+#: the hopper's landing ramp (see `_hopping.hop_problem`): ``(fraction of the distance,
+#: base velocity tolerance m/s and rad/s, base acceleration tolerance m/s^2 and rad/s^2,
+#: terminal height (m) and pitch (rad) tolerance)``. The distance goes to 100 % at 1 cm,
+#: then the tolerances tighten by about 1.4x per stage (halving them in one stage made
+#: SLSQP diverge) to the last stage's 8e-4 m/s, 0.8 m/s^2 and 3 mm / 3 mrad. The
+#: acceleration tolerance is 1000 s^-1 x the velocity one: on the contact springs
+#: (k/m ~ 3000 s^-2) 0.8 m/s^2 is the equilibrium 0.3 mm away, and the `HOLD` test, not
+#: the acceleration, is what says the robot stays put
+RAMP = tuple((f, tl, 1000.0 * tl, max(tl, 0.003)) for f, tl in (
+    (1 / 3, 0.05), (2 / 3, 0.02), (5 / 6, 0.01), (0.91625, 0.01), (1.0, 0.01), (1.0, 0.007), (1.0, 0.005),
+    (1.0, 0.0035), (1.0, 0.0025), (1.0, 0.0018), (1.0, 0.0012), (1.0, 8e-4)))
+
+#: the end posture: each hinge within this (rad) of straight (its rest value), so that
+#: the last control points can trim the balance on the foot (with the posture pinned the
+#: terminal base state is the contact's passive settling and barely moves with the
+#: controls; see the module docstring)
+END_POSTURE_TOL = 0.03
+
+#: the factor on the motor limits of the every-step torque constraint, stage by stage
+#: after the landing ramp (the sampled plan needs 1.67x at the landing, on the ankle)
+DENSE_RAMP = (1.6, 1.4, 1.25, 1.1, 1.0)
+
+#: the hold test of the criteria (`_planar.hold_test`): 1 s more with the joints locked,
+#: the base stays within 0.01 rad and 2 mm of where it ended and is still (< 1e-2 m/s)
+HOLD = dict(duration=1.0, pitch_tol=0.01, pos_tol=0.002, v_tol=1e-2)
+
+#: the acceleration criterion (m/s^2, rad/s^2): what the last stage asks for, 0.8, with
+#: room; the HOLD test checks the rest
+ACC_TOL = 1.0
 
 
-def hopper(distance: float = 0.15, t_final: float = 1.2, n_ctrl: int = 12, dt: float = 0.004,
+def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: float = 0.004,
            clearance: float = 0.03, integrator: str = "rk4", contact=None, schedule=None,
-           armature: float | None = None, max_pitch: float = 1.0, w_land: float = 1e7, first_step: float = 0.1,
-           trust: float = 1.0, shooting: int = 4, ramp=None):
+           armature: float | None = None, max_pitch: float = 0.6, w_land: float = 1e7, first_step: float = 0.1,
+           trust: float = 1.0, shooting: int = 5, ramp=None, slip_power: float | None = 40.0,
+           dense_torque: bool = True, dense_ramp=DENSE_RAMP, final_tol: float = 1e-6, **landing):
     """Hop forward by at least ``distance`` m, with a flight phase, and land at rest.
 
     Robot: `hopper_model` (Gymnasium's hopper; ``armature`` overrides its 1 kg m^2) with
@@ -243,30 +266,44 @@ def hopper(distance: float = 0.15, t_final: float = 1.2, n_ctrl: int = 12, dt: f
     ``dt``), passive planar base.
 
     Start: standing straight at rest (``q = 0`` posture, base at the contact equilibrium
-    `REST_Z`, `REST_PITCH`, ``v = 0``). End (``t_final``): the same posture at rest, the
-    base at rest in the standing equilibrium, ``root_x`` at least ``distance`` ahead.
+    `REST_Z`, `REST_PITCH`, ``v = 0``). End (``t_final``): the joints at rest within
+    `END_POSTURE_TOL` of straight, the base at rest (velocities and accelerations within
+    the last stage of ``ramp``, height and pitch within 3 mm / 3 mrad of the standing
+    equilibrium), ``root_x`` at least ``distance`` ahead.
 
     The problem is `_hopping.hop_problem` (costs, constraints, variable bounds, solve plan
-    and success criteria are documented there): cost ``integral 1/2 |tau|^2 dt`` over the
-    three motors (N^2 m^2 s) plus the landing penalty (``w_land``, N^2 m^2 s per m^2) of the
-    first stages; a flight phase with every contact point at least ``clearance`` m up at
-    some instant (not scheduled); ``|pitch| <= max_pitch`` rad; joint limits and ``|tau|
-    <= 200 N m`` (sampled); the end at rest in the rest pose (stage 1).
+    and success criteria are documented there) with ``rest_accel=True``: cost ``integral
+    1/2 |tau|^2 dt`` over the three motors (N^2 m^2 s) plus the landing penalty
+    (``w_land``, N^2 m^2 s per m^2) of the first stages; a flight phase with every contact
+    point at least ``clearance`` m up at some instant (not scheduled); ``|pitch| <=
+    max_pitch`` rad; joint limits and ``|tau| <= 200 N m`` (sampled, and with
+    ``dense_torque`` on every step after the ramp, along ``dense_ramp``); with
+    ``slip_power`` (W) from stage 1 `_planar.SlipPower`: the contacts' sliding power
+    bounded at every sample, so that the distance is not gained by sliding the foot. The
+    last stage stops at SLSQP tolerance ``final_tol``. Success criteria: `hop_criteria`
+    with `ACC_TOL` and the `HOLD` test.
 
     Initial guess (posture level): `KEYFRAMES` (stand, crouch, push, tuck, land, stand);
-    with ``shooting=K > 1`` (default 4: multiple shooting, `MotionProblem`) `cs.solve`
+    with ``shooting=K > 1`` (default 5: multiple shooting, `MotionProblem`) `cs.solve`
     starts the node states on the guess's own rollout. ``ramp``: the landing ramp
-    (default `RAMP`).
+    (default `RAMP`). ``landing``: further `hop_problem` arguments.
     """
     from ._hopping import hop_problem
+    from ._planar import SlipPower
 
     model = hopper_model(armature=armature)
     contact = hopper_contact() if contact is None else contact
     q_rest = np.array([0.0, REST_Z, REST_PITCH, 0.0, 0.0, 0.0])
+    ramp = RAMP if ramp is None else ramp
+    opts = dict(end_posture_tol=END_POSTURE_TOL, rest_accel=True, pose_tol=ramp[-1][3], land_tol=ramp[-1][1],
+                criteria_options=dict(acc_tol=ACC_TOL, hold=HOLD), final_tol=final_tol,
+                extra=[] if slip_power is None else [SlipPower(float(slip_power), stage=1)])
+    opts.update(landing)
     return hop_problem("hopper", model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
                        dt=dt, clearance=clearance, max_pitch=max_pitch, w_land=w_land, min_flight=0.05,
                        keyframes=KEYFRAMES, integrator=integrator, schedule=schedule, first_step=first_step,
-                       trust=trust, ramp=RAMP if ramp is None else ramp, shooting=shooting)
+                       trust=trust, ramp=ramp, shooting=shooting, dense_torque=dense_torque, dense_ramp=dense_ramp,
+                       **opts)
 
 
 EXAMPLES = {"hopper": hopper}

@@ -537,20 +537,11 @@ class _RestCriteria:
         self.spec, self.problem = spec, problem
 
     def __call__(self, sol):
-        from ..errors import DivergenceError
         from ..report import evaluate_criteria
-        from ..simulate import simulate
+        from ._planar import hold_test
 
-        p = self.problem
-        out = evaluate_criteria(self.spec, p.model, sol)
-        qT, vT = np.asarray(sol.trajectory["q"][-1]), np.asarray(sol.trajectory["v"][-1])
-        try:
-            h = simulate(p.model, qT, vT, t_final=HOLD["duration"], dt=p.dt, active=p.active, env=p.env,
-                         contact=p.contact)
-            q, v = np.asarray(h.q), np.asarray(h.v)
-            dev, vend = float(np.max(np.abs(q[:, 2] - qT[2]))), float(np.max(np.abs(v[-1, :3])))
-        except DivergenceError:  # a diverging hold is a failed hold
-            dev = vend = float("inf")
+        out = evaluate_criteria(self.spec, self.problem.model, sol)
+        dev, _, vend = hold_test(self.problem, sol, HOLD["duration"])
         out["holds still"] = dict(value=dev, tol=HOLD["pitch_tol"], op="<=", ok=bool(dev <= HOLD["pitch_tol"]))
         out["still after hold"] = dict(value=vend, tol=HOLD["v_tol"], op="<=", ok=bool(vend <= HOLD["v_tol"]))
         return out

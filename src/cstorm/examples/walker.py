@@ -105,7 +105,7 @@ from ..geometry.shapes import Capsule
 from ..model.builder import ModelBuilder
 from ..optimize.constraints import Constraint
 from ..optimize.costs import resolve
-from ._planar import DENSITY, capsule_inertia, longest_run, trajectory_contact_d
+from ._planar import DENSITY, SlipPower, capsule_inertia, longest_run, trajectory_contact_d
 from ._planar import criterion as _entry
 
 # (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
@@ -248,29 +248,6 @@ class SwingClearance(Constraint):
     def describe(self):
         return {"type": "SwingClearance", "groups": self.groups, "clearance": self.clearance,
                 "tau_points": self.tau_points, "tau_time": self.tau_time, "stage": self.stage}
-
-
-class SlipPower(Constraint):
-    """No skating: at every constraint-grid sample, the contact slip power
-    ``sum_k N_k sqrt(|v_t,k|^2 + v_eps^2)`` (W; ``N_k`` the normal force magnitude,
-    ``v_t,k`` the tangential velocity of contact point ``k``) is at most ``limit`` (W, or
-    a problem-parameter name). A stance foot's penalty friction creeps at ~1 cm/s under
-    body weight (~3 W); a skimming swing foot at 1 m/s under 40 N is 40 W."""
-
-    kind = "ineq"
-
-    def __init__(self, limit, v_eps=1e-3, stage=0, name="slip power"):
-        self.limit, self.v_eps, self.stage, self.name, self.kind = limit, float(v_eps), int(stage), name, "ineq"
-
-    def values(self, ctx, end, samples):
-        c = samples["contact"]
-        v, n = c.velocity, c.n
-        vt = v - jnp.sum(v * n, axis=-1, keepdims=True) * n
-        speed = jnp.sqrt(jnp.sum(vt * vt, axis=-1) + self.v_eps ** 2)
-        return resolve(self.limit, ctx.params) - jnp.sum(c.normal_magnitude * speed, axis=-1)
-
-    def describe(self):
-        return {"type": "SlipPower", "limit": self.limit, "v_eps": self.v_eps, "stage": self.stage}
 
 
 def foot_flat_ankle(pitch, hip, knee):

@@ -147,10 +147,10 @@ def _plan(problem, continuation, schedule):
     if schedule is not None:
         plan = []
         for i, s in enumerate(schedule):
-            bad = set(s) - {"params", "level", "trust_region"}
+            bad = set(s) - {"params", "level", "trust_region", "tol", "max_iter"}
             if bad:
                 raise InputError(f"solve: schedule stage {i} has unknown keys {sorted(bad)} (known: params, level, "
-                                 "trust_region)")
+                                 "trust_region, tol, max_iter)")
             plan.append((dict(s.get("params", {})), s.get("level", levels - 1)))
         return plan
     if continuation:
@@ -192,7 +192,9 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
         ``"intermediate_tol"`` and ``"intermediate_max_iter"`` to loosen them (default:
         ``tol`` and ``max_iter``).
       schedule: explicit plan ``[{"params": {...}, "level": k}, ...]``; a stage may also
-        set ``"trust_region"`` (its own box radius, see ``solve_options["trust_region"]``).
+        set ``"trust_region"`` (its own box radius, see ``solve_options["trust_region"]``),
+        ``"tol"`` and ``"max_iter"`` (its own optimality tolerance and iteration limit,
+        instead of ``tol``/``max_iter`` or the intermediate ones).
       max_iter: iteration limit per stage. tol: optimality tolerance (SLSQP ``ftol``,
         IPOPT ``tol``). constraint_tol: largest constraint violation counted as success.
       verbose: print one line per iteration (iteration, stage, cost, violation, step,
@@ -290,6 +292,9 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             last = si == len(plan) - 1
             s_tol = tol if last else problem.solve_options.get("intermediate_tol", tol)
             s_it = max_iter if last else min(max_iter, problem.solve_options.get("intermediate_max_iter", max_iter))
+            if schedule is not None:  # a stage's own tolerance / iteration limit
+                s_tol = float(schedule[si].get("tol", s_tol))
+                s_it = int(schedule[si].get("max_iter", s_it))
             if method == "slsqp":
                 x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
             elif method == "trust-constr":

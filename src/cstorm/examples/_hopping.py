@@ -401,7 +401,17 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
       after the landing ramp, at its last tolerance, the factor goes along ``dense_ramp``
       (default `DENSE_RAMP`, 1.25 -> 1), then the final ``land_tol`` stage keeps it at 1.
       The sampled limits (stage 0) alone let a contact impact between two samples need
-      more than the motor has.
+      more than the motor has;
+    - ``end_posture_tol`` (rad): the active joints' end positions are free, each within
+      this of its ``q_rest`` value (stage 1; `TerminalState` inequalities), instead of
+      pinned; ``rest_accel=True``: the base's end is `AtRest` with velocities within
+      ``land_tol`` and accelerations within the parameter ``acc_tol``, the terminal
+      height and pitch within the parameter ``pose_tol`` (initially ``pose_tol``), and
+      the ``ramp`` entries are ``(fraction, land_tol, acc_tol, pose_tol)`` with the last
+      one the final stage (no separate ``land_tol`` stage);
+    - ``extra``: more constraint terms (e.g. `_planar.SlipPower`); ``criteria_options``:
+      keyword arguments of `hop_criteria` (``acc_tol``, ``hold``, ...); ``final_tol``:
+      the last stage's SLSQP tolerance.
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
     from ..environment import Environment, ground
     from ..optimize import costs, constraints

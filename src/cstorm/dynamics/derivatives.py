@@ -209,7 +209,7 @@ def _tree_masks(model):
     return anc, dj, up, same, up & ~same, (up & ~same).T
 
 
-def _rnea_partials(model, kin, oa, F, f_ext):
+def _rnea_partials(model, kin, oa, F, f_ext, M=None):
     """M, dtau/dq (tangent) and dtau/dv (nv, nv) at the accelerations oa and subtree forces
     F of `_dynamics` (Carpentier & Mansard 2018, world-frame form, with world-fixed external
     wrenches), and the stacked world motion subspace Jc (6, nv).
@@ -225,7 +225,8 @@ def _rnea_partials(model, kin, oa, F, f_ext):
       dtau_j/dq_k = (Ycrb_j J_j)^T dAdq_k + (doYcrb_j^T J_j)^T dVdq_k - (J_j x* Fext_j)^T J_k
       dtau_j/dv_k = (Ycrb_j J_j)^T dAdv_k + (doYcrb_j^T J_j)^T J_k
     Each part is one dense product of stacked (6, nv) columns, masked by the static tree
-    structure: a few fused elementwise loops instead of many tiny products.
+    structure: a few fused elementwise loops instead of many tiny products. M depends on
+    q only: a caller that already has it (the hybrid layer's `_mass_only`) passes it in.
     """
     nb = model.n_bodies
     par = model.parents
@@ -257,9 +258,8 @@ def _rnea_partials(model, kin, oa, F, f_ext):
     Jc = jnp.concatenate(J, axis=1)
     JT = Jc.T
     mask = lambda m: jnp.asarray(m, dtype=dtype)
-    # mass matrix
-    U = sp.mm(JT, C["A"])
-    M = mask(up) * U + (mask(sup) * U).T + jnp.diag(model.armature)
+    if M is None:
+        M = _mass_from_columns(model, Jc, C["A"])
     # dtau/dq
     dq_up = sp.mm(JT, C["dFdq"])
     dq = mask(up) * dq_up + mask(sup) * sp.mm(JT, C["XG"])
@@ -333,7 +333,7 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
         a_p = sp.mv(Minv, tau_passive - _take(tau0, ip))
         a = a + jnp.zeros(nv, dtype=dtype).at[ip].set(a_p)
     oa, F, tau = _dynamics(model, kin, a, f_ext)
-    M, dq, dv, Jc = _rnea_partials(model, kin, oa, F, f_ext)
+    M, dq, dv, Jc = _rnea_partials(model, kin, oa, F, f_ext, M0)
     anc, dj, *_ = _tree_masks(model)
     if not len(ip):
         df = -(jnp.asarray(anc[dj], dtype=dtype)[:, :, None] * Jc.T[:, None, :])
@@ -350,8 +350,11 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
         return out + amask * X if len(ia) else out
 
     y = _rows(ia, ip, _take(tau, ia), a_p)
-    Dq, Dv = S_times(dq), S_times(dv)
-    Da = S_times(_take(M, ia, 1)) if len(ia) else jnp.zeros((nv, 0), dtype=dtype)
+    # one product S [dq | dv | M[:, a]] instead of three
+    blocks = [dq, dv] + ([_take(M, ia, 1)] if len(ia) else [])
+    SX = S_times(jnp.concatenate(blocks, axis=1))
+    Dq, Dv = SX[:, :nv], SX[:, nv: 2 * nv]
+    Da = SX[:, 2 * nv:] if len(ia) else jnp.zeros((nv, 0), dtype=dtype)
     # external wrenches, accumulated down the tree
     pos = np.full(nv, -1)
     pos[ip] = np.arange(len(ip))
@@ -370,9 +373,14 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
 
 def _mass_only(model, kin):
     """M (nv, nv) from the world Jacobian columns and composite inertias."""
-    _, _, up, _, sup, _ = _tree_masks(model)
     Jc = jnp.concatenate(kin.J, axis=1)
     A = jnp.concatenate([sp.mm(kin.Ycrb[k], kin.J[k]) for k in range(model.n_bodies)], axis=1)
+    return _mass_from_columns(model, Jc, A)
+
+
+def _mass_from_columns(model, Jc, A):
+    """M = the up-masked ``Jc^T A`` (A = Ycrb_k J_k per column), mirrored, plus armature."""
+    _, _, up, _, sup, _ = _tree_masks(model)
     U = sp.mm(Jc.T, A)
     dtype = U.dtype
     return jnp.asarray(up, dtype=dtype) * U + (jnp.asarray(sup, dtype=dtype) * U).T + jnp.diag(model.armature)

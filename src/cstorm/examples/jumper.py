@@ -71,8 +71,21 @@ first as a terminal penalty ``w_land/2 (|z - z0|^2 + |pitch - pitch0|^2 + |v_bas
 with ``w_land`` ramped 1, 10, 100 (constraint level 0: flight, pitch, limits), then
 the landing constraints (level 1) at ``qtol = 5 mm/rad, vtol = 1 cm/s``, then ``1e-3``.
 
-**Status: not yet solved.** Measured with the fast variant (``dt = 4 ms``, SLSQP unless
-stated), none of these reached the landing at rest:
+**Status: not yet solved.** Closest so far (2026-12-02, not the default): the hopper's
+formulation, `_hopping.hop_problem` on this model (``q_rest`` the crouch of
+``crouch_angles(0.5)`` at `rest_configuration`, keyframes from `GUESS`, distance 0,
+1.0 s, RK4 at 4 ms, 16 control points, 5 shooting intervals, clearance 2 cm at some
+instant (no time window), ``max_pitch`` 0.5, ``w_land`` 1e4, the hopper's `RAMP` of
+velocity / acceleration / pose tolerances down to 8e-4 m/s, 0.8 m/s^2, 3 mm,
+``end_posture_tol`` 0.03 rad, the torque limits on every step after the ramp (1.5 ->
+1), last stage at tolerance 1e-6) converges: 535 SLSQP iterations, 364 s, cost 24.9
+N^2 m^2 s, a 0.35 s flight, landing at rest (speed 8e-4, hold test 0.6 mrad / 0.3 mm),
+torque 0.67x the limits on every step; every `hop_criteria` entry holds except the
+penetration: 15.8 mm at the landing (criterion 1 cm; k = 5e3 N/m stops a 2.7 kg robot
+falling from ~15 cm only that deep). Next: a contact-distance bound on the landing (or
+a lower jump), then make it the default. Measured with the original formulation (fast
+variant, ``dt = 4 ms``, SLSQP unless stated), none of these reached the landing at
+rest:
 
 - the schedule above without the pitch bound, from the crouch held still: stage 0
   (``w_land = 1``) ends in a 0.16 s flight that lands lying down (pitch error 1.6 rad);

@@ -115,6 +115,32 @@ def test_schedule_stage_own_tol_and_max_iter(problem):
         solve(problem, schedule=[dict(params={}, level=0, maxiter=3)])
 
 
+def test_diverged_final_iterate_keeps_the_last_sound_stage(problem, monkeypatch):
+    """When the solver ends a stage where the rollout diverges, `solve` does not raise
+    and lose the work: it returns the last stage end whose rollout did not diverge,
+    unsuccessful, and says where the final iterate diverged."""
+    import importlib
+
+    S = importlib.import_module("cstorm.optimize.solve")  # (cstorm.optimize.solve is the function)
+    real = S._run_slsqp
+    calls = []
+
+    def run(ev, x, tracker, si, params, it, tol, options):
+        calls.append(si)
+        x, ok, msg, nit = real(ev, x, tracker, si, params, 3, tol, options)
+        if si == 1:  # the second stage "wanders off" to control points that blow up
+            x = x + 1e4
+        return x, ok, msg, nit
+
+    monkeypatch.setattr(S, "_run_slsqp", run)
+    s = solve(problem, schedule=[dict(params={}, level=0), dict(params={}, level=0)], max_iter=300)
+    assert calls == [0, 1]
+    assert not s.success
+    assert "diverged" in s.message and "end of stage 0" in s.message, s.message
+    assert not bool(s.trajectory.get("diverged", False))
+    assert np.all(np.isfinite(s.trajectory["q"])) and np.max(np.abs(s.x)) < 1e3
+
+
 def test_checkpoint_and_resume(problem, solution, tmp_path):
     ck = tmp_path / "ck.npz"
 

@@ -274,6 +274,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     message, solver_ok, interrupted = "", False, False
     params_now = dict(problem.params)
     ev = None
+    last_sound = None  # (x, stage) of the last stage end whose rollout did not diverge
     for si in range(start_stage, len(plan)):
         sparams, level = plan[si]
         params_now = {**problem.params, **{k: np.asarray(v, float) for k, v in plan[si][0].items()}}
@@ -313,6 +314,8 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             break
         stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message, iterations=nit,
                                 cost=ev.at(x)[0], violation=ev.violation(x)))
+        if not ev.at(x)[3]:
+            last_sound = (np.array(x, float), si)
         if verbose and len(plan) > 1:
             print(f"stage {si} ({_jsonable(sparams)}, constraint level {level}): {message}", file=tracker.out)
 
@@ -329,13 +332,28 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     data_final = ev.data
     traj = problem.compiled("trajectory")(jnp.asarray(x), data_final)
     traj = jax.tree_util.tree_map(np.asarray, traj)
+    fell_back = None
+    if bool(traj["diverged"]) and not interrupted and last_sound is not None:
+        # the solver ended where the rollout diverges (a stage wandered off): keep the
+        # user's work, the last stage end whose rollout did not diverge, and say so
+        try:
+            check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the final iterate's rollout")
+        except DivergenceError as e:
+            fell_back = str(e)
+        x = last_sound[0]
+        f, *_ = ev.at(x)
+        viol = ev.violation(x)
+        traj = jax.tree_util.tree_map(np.asarray, problem.compiled("trajectory")(jnp.asarray(x), data_final))
     if bool(traj["diverged"]):
         try:
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the final motion's rollout")
         except DivergenceError:
             if not interrupted:
                 raise
-    success = (not interrupted) and solver_ok and viol <= constraint_tol
+    success = (not interrupted) and solver_ok and viol <= constraint_tol and fell_back is None
+    if fell_back is not None:
+        message = (f"{message}; {fell_back}; returning the end of stage {last_sound[1]} instead, the last whose "
+                   "rollout did not diverge")
     if not interrupted and solver_ok and viol > constraint_tol:
         message = f"{message}; but the constraint violation {viol:.3g} exceeds constraint_tol={constraint_tol:g}"
     trajectory = dict(t=np.asarray(problem.t), q=traj["q"], v=traj["v"], a=traj["a"], tau=traj["tau"],

@@ -15,7 +15,9 @@ gives the plan explicitly. With neither, one stage with every constraint.
 
 Robustness. A trial point whose rollout diverges is returned to the solver as a very
 bad point (a huge objective and finite constraint values), so the line search backs
-off. Ctrl-C (KeyboardInterrupt, also raised from ``callback``) stops the solve and
+off; if a stage still ends at such a point, the solve returns the last stage end whose
+rollout did not diverge, with ``success=False`` and the divergence (time, joint,
+reason) in ``message``. Ctrl-C (KeyboardInterrupt, also raised from ``callback``) stops the solve and
 returns the best iterate so far (feasible with the lowest cost, else the least
 infeasible) with ``success=False``. ``checkpoint=path`` writes the current iterate and
 stage atomically after every iteration; ``resume=path`` continues from such a file.

@@ -351,7 +351,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
                 w_land, min_flight, keyframes, integrator="rk4", schedule=None, intermediate_tol=1e-4,
                 intermediate_max_iter=60, n_path_samples=50, trust=1.0, margin=1.0, first_step=None,
                 land_tol=1e-6, ramp=None, max_penetration=0.01, shooting=1, dense_torque=False,
-                dense_ramp=DENSE_RAMP, end_posture_tol=None, rest_accel=False, pose_tol=None, extra=(),
+                dense_ramp=DENSE_RAMP, end_posture_tol=None, rest_accel=False, extra=(),
                 criteria_options=None, final_tol=None):
     """The hop-forward-and-land problem shared by `hopper` and `luxo`: a `MotionProblem`
     that starts at rest in the standing equilibrium ``q_rest`` (nq,: planar base ``root_x,
@@ -406,9 +406,10 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
       this of its ``q_rest`` value (stage 1; `TerminalState` inequalities), instead of
       pinned; ``rest_accel=True``: the base's end is `AtRest` with velocities within
       ``land_tol`` and accelerations within the parameter ``acc_tol``, the terminal
-      height and pitch within the parameter ``pose_tol`` (initially ``pose_tol``), and
-      the ``ramp`` entries are ``(fraction, land_tol, acc_tol, pose_tol)`` with the last
-      one the final stage (no separate ``land_tol`` stage);
+      height and pitch within the parameter ``pose_tol``; the ``ramp`` entries are
+      ``(fraction, land_tol, acc_tol, pose_tol)``, the last one is the final stage (no
+      separate ``land_tol`` stage; the ``land_tol`` argument is not used) and gives the
+      parameters' initial values;
     - ``extra``: more constraint terms (e.g. `_planar.SlipPower`); ``criteria_options``:
       keyword arguments of `hop_criteria` (``acc_tol``, ``hold``, ...); ``final_tol``:
       the last stage's SLSQP tolerance.
@@ -419,6 +420,12 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
     q_rest = np.asarray(q_rest, float)
     ia = [model.joint_q(n).start for n in active]
+    ramp = RAMP if ramp is None else ramp
+    # the landing tolerances: with rest_accel, (land_tol, acc_tol, pose_tol) start at the
+    # ramp's last entry (the final stage's); otherwise one land_tol for every quantity
+    rest_params = dict(land_tol=ramp[-1][1], acc_tol=ramp[-1][2], pose_tol=ramp[-1][3]) if rest_accel else \
+        dict(land_tol=land_tol)
+    pose = "pose_tol" if rest_accel else "land_tol"
     z_rest, pitch_rest = float(q_rest[model.joint_q("root_z").start]), float(q_rest[model.joint_q("root_pitch").start])
     prob = MotionProblem(
         model, active=active, t_final=t_final, n_ctrl=n_ctrl, dt=dt, q0=q_rest, env=Environment([ground()]),
@@ -429,10 +436,8 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
             ForwardDistance("distance"),
             AtRest(acceleration=bool(rest_accel), tol="land_tol", stage=1,
                    accel_tol="acc_tol" if rest_accel else None),
-            constraints.TerminalState("root_z", q=z_rest, kind="ineq", tol="pose_tol" if rest_accel else "land_tol",
-                                      stage=1),
-            constraints.TerminalState("root_pitch", q=pitch_rest, kind="ineq",
-                                      tol="pose_tol" if rest_accel else "land_tol", stage=1),
+            constraints.TerminalState("root_z", q=z_rest, kind="ineq", tol=pose, stage=1),
+            constraints.TerminalState("root_pitch", q=pitch_rest, kind="ineq", tol=pose, stage=1),
         ] + ([constraints.TerminalState(n, q=float(q_rest[i]), kind="ineq", tol=float(end_posture_tol), stage=1)
               for n, i in zip(active, ia)] if end_posture_tol is not None else []) + list(extra) + [
             constraints.JointLimits(list(active), velocity=False),
@@ -442,8 +447,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         ] + ([ScaledTorqueLimits("tau_factor", dense=True, stage=2, name="torque_limits_every_step")]
              if dense_torque else []),
         params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
-                "land_tol": land_tol, **({"tau_factor": 1.0} if dense_torque else {}),
-                **({"acc_tol": 10 * land_tol, "pose_tol": pose_tol} if rest_accel else {})},
+                **rest_params, **({"tau_factor": 1.0} if dense_torque else {})},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
     )
@@ -465,7 +469,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
     prob.success_criteria = criteria
     if schedule is None:
         d0 = distance / 3.0
-        ramp = RAMP if ramp is None else ramp
+
         def at(entry):  # (fraction of the distance, land_tol[, acc_tol, pose_tol])
             f, tl, *rest = entry
             return dict(distance=distance * f, land_tol=tl, **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))

@@ -309,15 +309,14 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     model = hopper_model(armature=armature)
     contact = hopper_contact() if contact is None else contact
     q_rest = np.array([0.0, REST_Z, REST_PITCH, 0.0, 0.0, 0.0])
-    ramp = RAMP if ramp is None else ramp
-    opts = dict(end_posture_tol=END_POSTURE_TOL, rest_accel=True, pose_tol=ramp[-1][3], land_tol=ramp[-1][1],
+    opts = dict(end_posture_tol=END_POSTURE_TOL, rest_accel=True,
                 criteria_options=dict(acc_tol=ACC_TOL, hold=HOLD), final_tol=final_tol,
                 extra=[] if slip_power is None else [SlipPower(float(slip_power), stage=1)])
     opts.update(landing)
     return hop_problem("hopper", model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
                        dt=dt, clearance=clearance, max_pitch=max_pitch, w_land=w_land, min_flight=0.05,
                        keyframes=KEYFRAMES, integrator=integrator, schedule=schedule, first_step=first_step,
-                       trust=trust, ramp=ramp, shooting=shooting, dense_torque=dense_torque, dense_ramp=dense_ramp,
+                       trust=trust, ramp=RAMP if ramp is None else ramp, shooting=shooting, dense_torque=dense_torque, dense_ramp=dense_ramp,
                        **opts)
 
 

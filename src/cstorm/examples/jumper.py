@@ -85,9 +85,9 @@ penetration: 15.8 mm at the landing (criterion 1 cm; k = 5e3 N/m stops a 2.7 kg 
 falling from ~15 cm only that deep). With `ContactDistance` >= -9 mm from stage 1
 added, stages 0-7 converge and stage 8 onwards fail their line searches, ending where
 the rollout diverges. Next: a lower jump (a clearance window, or a bound on the
-flight's height) rather than a bare penetration bound, then make it the default. Measured with the original formulation (fast
-variant, ``dt = 4 ms``, SLSQP unless stated), none of these reached the landing at
-rest:
+flight's height) rather than a bare penetration bound, then make it the default.
+Measured with the original formulation (fast variant, ``dt = 4 ms``, SLSQP unless
+stated), none of these reached the landing at rest:
 
 - the schedule above without the pitch bound, from the crouch held still: stage 0
   (``w_land = 1``) ends in a 0.16 s flight that lands lying down (pitch error 1.6 rad);

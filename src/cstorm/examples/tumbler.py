@@ -538,12 +538,12 @@ class _RestCriteria:
 
     def __call__(self, sol):
         from ..report import evaluate_criteria
-        from ._planar import hold_test
+        from ._planar import criterion, hold_test
 
         out = evaluate_criteria(self.spec, self.problem.model, sol)
         dev, _, vend = hold_test(self.problem, sol, HOLD["duration"])
-        out["holds still"] = dict(value=dev, tol=HOLD["pitch_tol"], op="<=", ok=bool(dev <= HOLD["pitch_tol"]))
-        out["still after hold"] = dict(value=vend, tol=HOLD["v_tol"], op="<=", ok=bool(vend <= HOLD["v_tol"]))
+        out["holds still"] = criterion(dev, HOLD["pitch_tol"], dev <= HOLD["pitch_tol"])
+        out["still after hold"] = criterion(vend, HOLD["v_tol"], vend <= HOLD["v_tol"])
         return out
 
 

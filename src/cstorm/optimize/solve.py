@@ -17,9 +17,9 @@ Robustness. A trial point whose rollout diverges is returned to the solver as a 
 bad point (a huge objective and finite constraint values), so the line search backs
 off; if a stage still ends at such a point, the solve returns the last stage end whose
 rollout did not diverge, with ``success=False`` and the divergence (time, joint,
-reason) in ``message``. Ctrl-C (KeyboardInterrupt, also raised from ``callback``) stops the solve and
-returns the best iterate so far (feasible with the lowest cost, else the least
-infeasible) with ``success=False``. ``checkpoint=path`` writes the current iterate and
+reason) in ``message``. Ctrl-C (KeyboardInterrupt, also raised from ``callback``)
+stops the solve and returns the best iterate so far (feasible with the lowest cost,
+else the least infeasible) with ``success=False``. ``checkpoint=path`` writes the current iterate and
 stage atomically after every iteration; ``resume=path`` continues from such a file.
 """
 
@@ -335,23 +335,20 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     traj = problem.compiled("trajectory")(jnp.asarray(x), data_final)
     traj = jax.tree_util.tree_map(np.asarray, traj)
     fell_back = None
-    if bool(traj["diverged"]) and not interrupted and last_sound is not None:
-        # the solver ended where the rollout diverges (a stage wandered off): keep the
-        # user's work, the last stage end whose rollout did not diverge, and say so
-        try:
-            check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the final iterate's rollout")
-        except DivergenceError as e:
-            fell_back = str(e)
-        x = last_sound[0]
-        f, *_ = ev.at(x)
-        viol = ev.violation(x)
-        traj = jax.tree_util.tree_map(np.asarray, problem.compiled("trajectory")(jnp.asarray(x), data_final))
     if bool(traj["diverged"]):
         try:
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the final motion's rollout")
-        except DivergenceError:
-            if not interrupted:
+        except DivergenceError as e:
+            if not interrupted and last_sound is None:
                 raise
+            if not interrupted:
+                # a stage wandered off to where the rollout diverges: keep the user's
+                # work, the last stage end whose rollout did not diverge, and say so
+                fell_back = str(e)
+                x = last_sound[0]
+                f, *_ = ev.at(x)
+                viol = ev.violation(x)
+                traj = jax.tree_util.tree_map(np.asarray, problem.compiled("trajectory")(jnp.asarray(x), data_final))
     success = (not interrupted) and solver_ok and viol <= constraint_tol and fell_back is None
     if fell_back is not None:
         message = (f"{message}; {fell_back}; returning the end of stage {last_sound[1]} instead, the last whose "

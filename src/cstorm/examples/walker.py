@@ -515,7 +515,6 @@ def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_
     return out
 
 
-
 #: the fast variant's numbers (`fast_variant`): half the speed, 7 control points per joint
 FAST = dict(speed=0.4, n_ctrl=7)
 

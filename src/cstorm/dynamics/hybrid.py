@@ -185,18 +185,30 @@ def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
     out = [None] * nb
     for i, par in enumerate(model.parents):
         ai = sp.inv_act_motion(Rs[i], ps[i], a0 if par < 0 else acc[par]) + cs_[i]
-        res = jnp.zeros(model.joints[i].nv, dtype=ai.dtype)
+        parts = []  # (local DoF indices, values) of this joint's outputs
         if loc_p[i]:
-            lp = jnp.array(loc_p[i])
             qp = sp.mv(Dinv[i], u[i] - sp.mv(U[i].T, ai))
             ai = ai + (qp if eye_S[i] else sp.mv(Ss[i][:, loc_p[i]], qp))
-            res = res.at[lp].set(qp)
+            parts.append((loc_p[i], qp))
         if loc_a[i]:
             la = jnp.array(loc_a[i])
             f = sp.mv(IA[i], ai) + pA[i]
             ta = sp.mv(Ss[i][:, loc_a[i]].T, f) + model.armature[sl[i]][la] * qdd_known[sl[i]][la]
-            res = res.at[la].set(ta)
+            parts.append((loc_a[i], ta))
         acc[i] = ai
-        out[i] = res
+        if len(parts) == 1:
+            out[i] = parts[0][1]
+        else:  # a joint with both active and passive DoFs
+            out[i] = jnp.zeros(model.joints[i].nv, dtype=ai.dtype)
+            for idx, val in parts:
+                out[i] = out[i].at[jnp.array(idx)].set(val)
     y = jnp.concatenate(out)
-    return y[ia], y[ip]
+    return _take(y, ia), _take(y, ip)
+
+
+def _take(y, idx):
+    """``y[idx]`` for a static index array; a plain slice when idx is contiguous (the
+    whole vector in ABA) instead of a gather."""
+    if len(idx) and np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
+        return y[int(idx[0]): int(idx[0]) + len(idx)]
+    return y[idx]

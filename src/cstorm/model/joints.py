@@ -62,7 +62,8 @@ class Revolute(Joint):
     def transform(self, axis, qj):
         # Rodrigues with a unit axis: R = I + sin(q) K + (1 - cos(q)) K^2, K = [axis]x
         K = sp.skew(axis)
-        R = jnp.eye(3, dtype=axis.dtype) + jnp.sin(qj[0]) * K + (1.0 - jnp.cos(qj[0])) * sp.mm(K, K)
+        c, s = sp.cos_sin(qj[0])
+        R = jnp.eye(3, dtype=axis.dtype) + s * K + (1.0 - c) * sp.mm(K, K)
         return R, jnp.zeros(3, dtype=axis.dtype)
 
     def motion_subspace(self, axis):

@@ -320,4 +320,64 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
                        **opts)
 
 
+#: the fast variant's plan (CI; see `fast_variant`): the default plan's first stages up to
+#: the landing ramp's first entry (``FAST["stages"]`` of them), the second penalty stage cut
+#: at ``penalty_max_iter`` iterations, then that entry's tolerances again at SLSQP
+#: tolerance 1e-6 inside a box of ``polish_trust`` (control points, rad) around where it
+#: starts, at most ``polish_max_iter`` iterations
+FAST = dict(stages=3, penalty_max_iter=25, polish_trust=0.02, polish_max_iter=100)
+
+
+def fast_variant(problem=None):
+    """The hopper's fast variant (CI runs it; the full plan takes 250-700 iterations): the
+    same problem (robot, contact, horizon, controls, guess, constraints) solved along the
+    first part of its plan only, to a short hop landing nearly at rest.
+
+    Plan (`FAST`): the two landing-penalty stages (the second cut at 25 iterations) and the
+    landing ramp's first entry: a third of ``distance`` (0.05 m by default), the base at
+    T within 0.05 m/s, 50 m/s^2 and 0.05 m / rad of the standing rest, at SLSQP tolerance
+    1e-4; then the same stage again at tolerance 1e-6, each control point within 0.02 rad
+    of where that stage starts (a polish: unboxed, SLSQP at 1e-6 wanders off to other
+    motions with violations of 1e-3..1e-2 for 100+ iterations, measured).
+
+    Criteria (`hop_criteria`, not the full problem's): feasibility <= 1e-6, forward >= the
+    stage's distance, a flight of >= 0.05 s, the end within the stage's tolerances
+    (height and pitch 0.05, speed 0.05, acceleration 50), penetration <= 1 cm. Not
+    checked: the hold test and the motor limits on every step (the plan stops before the
+    every-step torque stages; sampled, the limits hold).
+
+    Args:
+      problem: a `hopper()` problem to derive it from (default: a new one). The variant is
+        a shallow copy that shares the compiled functions kept on that object, so a test
+        that has compiled the hopper once pays no second compile.
+
+    Returns the `MotionProblem` with the plan in ``solve_options`` and its own
+    ``success_criteria``."""
+    import copy
+
+    from ._hopping import hop_criteria
+
+    base = hopper() if problem is None else problem
+    if base.name != "hopper":
+        raise ValueError(f"hopper.fast_variant: expects a hopper() problem, got {base.name!r}")
+    p = copy.copy(base)  # the compiled functions live on the object: shared
+    k = FAST["stages"]
+    sched = [dict(s) for s in base.solve_options["schedule"][:k]]
+    sched[1]["max_iter"] = FAST["penalty_max_iter"]
+    sched.append(dict(sched[-1], tol=1e-6, max_iter=FAST["polish_max_iter"], trust_region=FAST["polish_trust"]))
+    p.solve_options = dict(base.solve_options, schedule=sched)
+    last = sched[-1]["params"]
+    land, acc, pose = (float(last[n]) for n in ("land_tol", "acc_tol", "pose_tol"))
+
+    def criteria(solution):
+        out = hop_criteria(p, solution, distance=float(last["distance"]), min_flight=0.05, z_rest=REST_Z,
+                           pitch_rest=REST_PITCH, pose_tol_z=pose, pose_tol_pitch=pose, vel_tol=land, acc_tol=acc,
+                           d_on=float(np.max(np.asarray(p.contact.d_on))))
+        out.pop("torque_limits")  # on every step: the full plan's last stages
+        return out
+
+    p.success_criteria = criteria
+    return p
+
+
 EXAMPLES = {"hopper": hopper}

@@ -595,11 +595,9 @@ class MotionProblem:
             # recomputing backward pass through the checkpointed scan (several times dearer)
             mode = "fwd" if n <= max(64, 4 * m) else "rev"
         if mode == "fwd":
-            # value, tangents and the divergence flag from one pass: the primal rollout
-            # is not batched by vmap, so it runs once (a separate `y(x)` ran it twice:
-            # measured on the tumbler, 9 % of the time and ~25 % of the compile)
-            jvp = lambda t: jax.jvp(y, (x,), (t,), has_aux=True)  # (value, tangent, diverged)
-            val, Jt, div = jax.vmap(jvp, out_axes=(None, 0, None))(jnp.eye(n, dtype=x.dtype))  # Jt (n, m)
+            val, div = y(x)
+            jvp = lambda t: jax.jvp(lambda xx: y(xx)[0], (x,), (t,))[1]
+            Jt = jax.vmap(jvp)(jnp.eye(n, dtype=x.dtype))  # (n, m)
             J = Jt.T
         else:
             val, vjp, div = jax.vjp(y, x, has_aux=True)

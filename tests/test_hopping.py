@@ -137,7 +137,8 @@ def test_luxo_solves_lands_at_rest_and_is_resolved_by_its_step():
     inside RK4's stability limit along the solution (limit 2.76 ms at dt = 2 ms). The
     criteria include the motor limits on every step (``torque_limits``; the dense
     constraint's stages), which `report.torque_check` confirms independently.
-    Measured: 108 iterations, ~70 s with compile on a 2-core machine."""
+    Measured: 96 iterations, cost 1.1467 (session 12; 108 and 0.8647 in session 8: the
+    path depends on the last bits of the derivatives, see docs/examples.md)."""
     from cstorm import report
 
     p, sol, fid = _solve_and_check("luxo")

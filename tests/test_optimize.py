@@ -111,6 +111,9 @@ def test_schedule_stage_own_tol_and_max_iter(problem):
     per_stage = [len([h for h in s.history if h["stage"] == k]) for k in (0, 1)]
     assert per_stage[0] <= 3 and per_stage[1] <= 2, per_stage
     assert [st["iterations"] for st in s.info["stages"]] == per_stage
+    # every stage's evaluations are counted: its start, and each iterate that moved
+    moved = sum(1 for h in s.history if h["step"] > 0)
+    assert s.n_evaluations >= len(per_stage) + moved, (s.n_evaluations, per_stage, moved)
     with pytest.raises(InputError, match="unknown keys"):
         solve(problem, schedule=[dict(params={}, level=0, maxiter=3)])
 

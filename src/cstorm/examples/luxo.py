@@ -56,16 +56,18 @@ variables), SLSQP along the default solve plan (11 stages, see `hop_problem`),
 `_hopping.DENSE_RAMP`: 1.25x, 1.1x, 1x the limits at the 0.5 mm landing tolerance) and the
 final 1e-6 stage, 15 stages in all. Initial guess: `KEYFRAMES` (posture level).
 
-Measured (`cstorm solve luxo`, 2-core machine, load ~1, session 8): success, 9/9 criteria.
-108 SLSQP iterations, 70 s including a 19 s compile (1.5 min with the fidelity check and
-the pictures). Cost 0.8647 N^2 m^2 s, constraint violation 6e-10. Forward 0.1600 m;
-longest flight 0.222 s; end pose errors 1.0e-6 m (height) and 3e-7 rad (pitch); base
-speed 1.0e-6; base acceleration 9.2e-3 m/s^2 (criterion 1e-2); deepest contact point 6.4
-mm below the surface. Torques within the limits on every step: the elbow peaks at 0.99x
-its 6 N m at the landing (t = 0.63 s). Fidelity: the final passive state is 1.6e-5 m /
-0.0075 deg from the plan (velocities 2.5e-4 m/s and 0.25 deg/s), checked with RK4 at
+Measured (`cstorm solve luxo`, 2-core machine, session 12, a CI run alongside): success,
+9/9 criteria. 96 SLSQP iterations, 242 s including a 55 s compile (about half on a quiet
+machine). Cost 1.1467 N^2 m^2 s, constraint violation 8e-10. Forward 0.1600 m; longest
+flight 0.232 s; end pose errors 1.0e-6 m (height) and 1.0e-6 rad (pitch); base speed
+1.0e-6; base acceleration 9.3e-3 m/s^2 (criterion 1e-2); deepest contact point 11.5 mm
+below the surface. Torques within the limits on every step: the elbow peaks at 0.991x
+its 6 N m at the landing (t = 0.65 s). Fidelity: the final passive state is 4.8e-5 m /
+0.017 deg from the plan (velocities 5.2e-4 m/s and 0.43 deg/s), checked with RK4 at
 0.5 ms and with DOP853; the time step is within RK4's limit (2.93 ms) along the whole
-solution.
+solution. The plan's path depends on the last bits of the derivatives (session 8: 108
+iterations, cost 0.8647; a 1e-15 change of the Jacobians in session 11 made it fail at
+a violation of 4.8): docs/examples.md says what was tried.
 
 With the limits only sampled (``dense_torque=False``, the problem until session 7): 78
 iterations, cost 0.9947, but between two samples at the landing the elbow needed 6.69 N

@@ -277,8 +277,10 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     params_now = dict(problem.params)
     ev = None
     last_sound = None  # (x, stage) of the last stage end whose rollout did not diverge
+    nev_done = 0  # evaluations of the finished stages' evaluators
     for si in range(start_stage, len(plan)):
         sparams, level = plan[si]
+        nev_done += ev.nev if ev is not None else 0
         params_now = {**problem.params, **{k: np.asarray(v, float) for k, v in plan[si][0].items()}}
         data = problem.data(params=sparams, q0=q0, v0=v0)
         me, mi = problem.constraint_masks(level)
@@ -368,7 +370,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                    iterations=tracker.iteration, x=np.asarray(x), trajectory=trajectory, history=tracker.history,
                    problem=problem.name, params={k: np.asarray(v).tolist() for k, v in params_now.items()},
                    wall_time_s=time.perf_counter() - t0, compile_time_s=compile_s,
-                   n_evaluations=sum(1 for _ in ()) + (ev.nev if ev else 0), info=info)
+                   n_evaluations=nev_done + (ev.nev if ev else 0), info=info)
     sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
     return sol
 

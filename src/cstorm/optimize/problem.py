@@ -595,6 +595,10 @@ class MotionProblem:
             # recomputing backward pass through the checkpointed scan (several times dearer)
             mode = "fwd" if n <= max(64, 4 * m) else "rev"
         if mode == "fwd":
+            # the primal runs separately from the batched tangents, on purpose: fusing
+            # them (one vmapped jvp with has_aux, ~10 % faster) moves the Jacobians by
+            # ~1e-15, and luxo's solve plan then fails (session 12): re-check its solve
+            # test before changing this
             val, div = y(x)
             jvp = lambda t: jax.jvp(lambda xx: y(xx)[0], (x,), (t,))[1]
             Jt = jax.vmap(jvp)(jnp.eye(n, dtype=x.dtype))  # (n, m)

@@ -215,7 +215,7 @@ def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_demo_solves_the_tumbler_sequence(tmp_path):
     """The real main demo (what `bash scripts/demo.sh` runs): the tumbler's four segments
-    solved chained, every segment's success criteria met (~6-8 min on a 2-core machine)."""
+    solved chained, every segment's success criteria met (~11 min on a 2-core machine)."""
     rc, stdout, _ = _run(["demo", "--out", str(tmp_path), "--json"])
     s = _one_json(stdout)
     assert rc == 0 and s["success"] and s["problem"] == "tumbler", s["message"]

@@ -341,9 +341,9 @@ def build_parser():
                                      "files",
                         description="The main demo: write the tumbling robot's model description "
                                     "(tumbler_info.txt), solve start -> handstand -> roll -> standing -> start (as "
-                                    "`cstorm solve tumbler`, 6-8 min on 2 cores) and write summary.json, "
+                                    "`cstorm solve tumbler`, 10-12 min on 2 cores) and write summary.json, "
                                     "solution.npz, trajectory.csv, PNG plots and animation.gif to --out. "
-                                    "`cstorm solve luxo` is a one-minute alternative.")
+                                    "`cstorm solve luxo` is a shorter alternative (2-4 min).")
     pd.add_argument("--out", default=os.path.join("cstorm-out", "demo"), help="output directory "
                                                                                "(default ./cstorm-out/demo)")
     pd.add_argument("--guess", action="store_true", help="do not solve: write the outputs of the initial guess "

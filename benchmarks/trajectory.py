@@ -51,10 +51,11 @@ Break-even parameter count: MuJoCo's finite-difference time grows linearly with 
 meets cstorm's gradient time at 30 parameters.
 
 The latest results are in benchmarks/README.md (2026-12-03, a quiet machine: every
-target of issue 4 missed there, MuJoCo ~1x at 30 parameters). Earlier results (2026-11-23, full run: 500 steps; x86_64, 2 cores, jax 0.10.2 cpu, the
-machine **shared with three other engineers' jobs, load average 3.5-5**, so both sides
-ran slower than on an idle machine and ratios carry perhaps +-30% noise; MuJoCo FD used
-both threads):
+target of issue 4 missed there, MuJoCo ~1x at 30 parameters). Earlier results
+(2026-11-23, full run: 500 steps; x86_64, 2 cores, jax 0.10.2 cpu, the machine
+**shared with three other engineers' jobs, load average 3.5-5**, so both sides ran
+slower than on an idle machine and ratios carry perhaps +-30% noise; MuJoCo FD used both
+threads):
 
 | case | cstorm (ms) | peer (ms) | cstorm / peer | target |
 |---|---|---|---|---|

@@ -8,8 +8,8 @@ where the previous one ended, with minimal integral of squared torques (about 10
 on a 2-core machine). The demo writes the robot's description (``tumbler_info.txt``:
 tree, joints, masses, inertias, collision shapes) and then exactly what ``cstorm solve
 tumbler`` writes: ``summary.json``, ``solution.npz``, ``trajectory.csv``, PNG plots and
-``animation.gif``. ``cstorm solve luxo`` is the shorter alternative (2-4 minutes) (the Luxo lamp's
-hop, the demo until session 8).
+``animation.gif``. ``cstorm solve luxo`` is the shorter alternative (the Luxo lamp's
+hop, 2-4 minutes; the demo until session 8).
 """
 
 from __future__ import annotations

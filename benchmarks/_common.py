@@ -46,7 +46,11 @@ def best_of(fn, repeat=5, number=1):
 
 
 def machine() -> str:
-    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, jax {jax.__version__} ({jax.default_backend()})"
+    from cstorm.allocator import allocator_tuned
+
+    malloc = "malloc tuned (cstorm.tune_allocator)" if allocator_tuned() else "malloc: system defaults"
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, "
+            f"jax {jax.__version__} ({jax.default_backend()}), {malloc}")
 
 
 def table(rows, headers) -> str:

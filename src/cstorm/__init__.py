@@ -29,3 +29,4 @@ from . import simulate
 from .optimize import MotionProblem, MotionSequence, solve, Solution, load_solution, check_gradients
 from .stepcheck import check_time_step
 from . import examples
+from .allocator import tune_allocator

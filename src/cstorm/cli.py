@@ -16,7 +16,12 @@ import time
 def _setup_jax():
     """float64, and JAX's persistent compilation cache in ``$CSTORM_JAX_CACHE`` (default
     ``~/.cache/cstorm/jax``; an empty value turns it off). A cache directory configured
-    already (by a host program or the test-suite) is left as it is."""
+    already (by a host program or the test-suite) is left as it is. Before JAX starts,
+    `cstorm.allocator.tune_allocator` (``CSTORM_MALLOC=system`` leaves malloc as it is;
+    inside a host program that has started JAX already it is left alone)."""
+    from .allocator import tune_allocator
+
+    tune_allocator(late="skip")
     import jax
 
     jax.config.update("jax_enable_x64", True)

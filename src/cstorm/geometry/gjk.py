@@ -20,6 +20,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
+import numpy as np
 import jax.numpy as jnp
 
 SEPARATED, CONTAINS, MAX_ITER = 1, 2, 3
@@ -44,8 +45,8 @@ _EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 _FACES = ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3))
 
 
-_EI = jnp.array(_EDGES)
-_FI = jnp.array(_FACES)
+_EI = np.array(_EDGES)  # numpy: no JAX computation (backend start) at import
+_FI = np.array(_FACES)
 
 
 def closest_on_simplex(W, mask):

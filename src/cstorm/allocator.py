@@ -8,7 +8,7 @@ configurations of a 38-DoF humanoid needs 59 MB. glibc's ``malloc`` serves block
 arenas cannot hold such a block at all. So every call faults the whole buffer in
 again, page by page, and the kernel zeroes each page: 14,400 minor page faults per call.
 Measured (2-core x86_64, quiet, same process as Pinocchio): batched ABA on TALOS
-12.1-15.7 us per configuration with glibc's defaults, 7.5-9.0 us with `tune_allocator`.
+12.1-15.7 us per configuration with glibc's defaults, 7.3-9.0 us with `tune_allocator`.
 Rollouts inside the solver use buffers of a few MB and are not affected.
 
 What `tune_allocator` changes, for the whole process, through ``mallopt(3)``:

@@ -8,6 +8,8 @@ import time
 
 import jax
 
+from cstorm.allocator import allocator_tuned
+
 jax.config.update("jax_enable_x64", True)
 
 
@@ -46,8 +48,6 @@ def best_of(fn, repeat=5, number=1):
 
 
 def machine() -> str:
-    from cstorm.allocator import allocator_tuned
-
     malloc = "malloc tuned (cstorm.tune_allocator)" if allocator_tuned() else "malloc: system defaults"
     return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, "
             f"jax {jax.__version__} ({jax.default_backend()}), {malloc}")

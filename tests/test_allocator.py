@@ -50,12 +50,18 @@ print(json.dumps(dict(tuned=tuned, faults=faults, state=cstorm.allocator.allocat
 """
 
 
-def _probe(mode, **env):
+def _python(code, *args, **env):
+    """The last line that a fresh interpreter running ``code`` prints (environment:
+    this one's without ``CSTORM_MALLOC``, plus ``env``)."""
     e = {k: v for k, v in os.environ.items() if k != "CSTORM_MALLOC"}
     e.update(env)
-    out = subprocess.run([sys.executable, "-c", _PROBE, mode], capture_output=True, text=True, env=e, timeout=300)
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=e, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return out.stdout.strip().splitlines()[-1]
+
+
+def _probe(mode, **env):
+    return json.loads(_python(_PROBE, mode, **env))
 
 
 @pytest.mark.skipif(not GLIBC, reason="tune_allocator acts on glibc only")
@@ -95,6 +101,4 @@ def test_import_does_not_start_jax():
     program can still tune the allocator (or choose JAX's platform) after the import."""
     code = ("import cstorm, cstorm.cli, cstorm.examples.tumbler, cstorm.viz\n"
             "from jax._src import xla_bridge\nprint(xla_bridge.backends_are_initialized())")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "False"
+    assert _python(code) == "False"

@@ -55,12 +55,12 @@ _M_ARENA_MAX = -8
 #: default of ``retain_bytes``: free heap memory kept for reuse (1 GiB)
 RETAIN_BYTES = 1 << 30
 
-_state = {"tuned": False}
+_tuned = False
 
 
 def allocator_tuned() -> bool:
     """Whether `tune_allocator` has changed this process's allocator."""
-    return _state["tuned"]
+    return _tuned
 
 
 def _backend_started() -> bool:
@@ -94,14 +94,15 @@ def tune_allocator(retain_bytes: int = RETAIN_BYTES, *, respect_env: bool = True
         raise ValueError(f"tune_allocator: retain_bytes must be an int >= 0, got {retain_bytes!r}")
     if late not in ("warn", "skip"):
         raise ValueError(f"tune_allocator: late must be 'warn' or 'skip', got {late!r}")
+    global _tuned
     if respect_env and os.environ.get("CSTORM_MALLOC", "").strip().lower() == "system":
         return False
-    if _state["tuned"]:
+    if _tuned:
         return True
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
     started = _backend_started()
     if started and late == "skip":
-        return False
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
@@ -109,11 +110,11 @@ def tune_allocator(retain_bytes: int = RETAIN_BYTES, *, respect_env: bool = True
     except (OSError, AttributeError):  # pragma: no cover - glibc without mallopt
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    trim = min(int(retain_bytes), 2**31 - 1)  # mallopt takes a C int
+    trim = min(retain_bytes, 2**31 - 1)  # mallopt takes a C int
     ok = all(mallopt(p, v) == 1 for p, v in ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, trim)))
     if not ok:  # pragma: no cover - glibc refused a parameter
         return False
-    _state["tuned"] = True
+    _tuned = True
     if started:
         warnings.warn("cstorm.tune_allocator: JAX's backend has already started, so XLA's worker threads keep "
                       "their own malloc arenas and their large buffers are still mapped afresh on every call; "

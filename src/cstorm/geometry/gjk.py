@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import numpy as np
+import jax
 import jax.numpy as jnp
 
 SEPARATED, CONTAINS, MAX_ITER = 1, 2, 3

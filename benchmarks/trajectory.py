@@ -176,9 +176,10 @@ class _Setup:
 # ---------------------------------------------------------------------------------------
 # cstorm
 # ---------------------------------------------------------------------------------------
-def _cstorm_fns(S: _Setup, contact: bool):
+def _cstorm_fns(S: _Setup, contact: bool, derivatives: str = "parallel"):
     """Jitted ``loss(paths) -> J`` and ``value_and_grad`` w.r.t. the paths (RK4 grid and
-    half-step arrays), both compiled once for every parameter count."""
+    half-step arrays), both compiled once for every parameter count. ``derivatives``:
+    the rollout's derivative rule (`cstorm.simulate.rollout`)."""
     from cstorm.contact import contact_forces
     from cstorm.simulate import rollout
 
@@ -197,7 +198,7 @@ def _cstorm_fns(S: _Setup, contact: bool):
                 out = contact_forces(m, env, cp, q, v)
                 return out.f_ext, None
         res = rollout(m, lay, q0, v0, paths, S.dt, S.steps, integrator="rk4", contact_fn=cfn, cost_fn=cost_fn,
-                      record=False)
+                      record=False, derivatives=derivatives)
         e = res["qT"][:3] - target
         return res["J"] + 0.5 * jnp.sum(e * e)
 
@@ -282,7 +283,7 @@ class _MuJoCo:
 
 
 # ---------------------------------------------------------------------------------------
-def run(quick: bool = False) -> list:
+def run(quick: bool = False, derivatives: str = "parallel") -> list:
     """Time the cases and return rows (dicts): ``benchmark`` ("trajectory"), ``case``,
     ``cstorm_us``, ``peer``, ``peer_us``, ``ratio`` (cstorm / peer; < 1: cstorm faster),
     ``compile_s`` (cstorm's compile time for the row's function), ``notes``."""
@@ -293,7 +294,7 @@ def run(quick: bool = False) -> list:
     for contact in (False, True):
         tag = "contact" if contact else "no contact"
         mj = _MuJoCo(S, contact)
-        loss, vg = _cstorm_fns(S, contact)
+        loss, vg = _cstorm_fns(S, contact, derivatives)
         env, cp = S.env, S.contact
         # compile (timed separately) on the 30-parameter paths
         spl30 = S.spline(PARAMS[0])
@@ -347,7 +348,8 @@ def run(quick: bool = False) -> list:
             rows.append(dict(benchmark="trajectory", case=f"cost+gradient, {P} params, {tag}, {steps} steps",
                              cstorm_us=t_g * 1e6, peer=f"MuJoCo FD ({P + 1} rollouts, {mj.nthread} threads)",
                              peer_us=t_fd * 1e6, ratio=t_g / t_fd, compile_s=comp_g,
-                             notes=f"cstorm reverse-mode value_and_grad; speed-up {t_fd / t_g:.1f}x"))
+                             notes=f"cstorm reverse-mode value_and_grad (derivatives={derivatives!r}); "
+                                   f"speed-up {t_fd / t_g:.1f}x"))
         P_star = (t_grads[PARAMS[0]] - a) / b - 1 if b > 0 else math.inf
         for r in rows[-len(PARAMS):]:
             r["notes"] += f"; break-even at ~{max(P_star, 0):.0f} params (MuJoCo FD {b * 1e6:.0f} us per rollout " \
@@ -369,8 +371,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="200 steps, fewer repeats")
     ap.add_argument("--json", action="store_true", help="print the rows as one JSON object")
+    ap.add_argument("--derivatives", default="parallel", choices=("parallel", "analytic", "autodiff"),
+                    help="the rollout's derivative rule (default: parallel, the time-parallel step Jacobians)")
     args = ap.parse_args(argv)
-    rows = run(quick=args.quick)
+    rows = run(quick=args.quick, derivatives=args.derivatives)
     if args.json:
         print(json.dumps(dict(benchmark="trajectory", machine=machine(), rows=rows)))
     else:

@@ -19,8 +19,10 @@ What is timed (wall clock, best of several runs; compile time reported separatel
   active joints' quintic B-splines (``P = 3 n_ctrl`` parameters: 30 -> 10 control points
   per joint, 300 -> 100). The hinges are *active* (they follow their splines, the
   hybrid algorithm gives their torques), the base is passive: cstorm's method. The
-  rollout is `cstorm.simulate.rollout` (RK4, checkpointed scan, default segment) under
-  reverse-mode autodiff. The splines enter only through the basis matrices (``paths =
+  rollout is `cstorm.simulate.rollout` (RK4) under reverse-mode autodiff, with
+  ``derivatives="parallel"`` (the time-parallel tangent rule of
+  `cstorm.rollout_tangents`; ``--derivatives analytic`` for JAX's derivative of the
+  checkpointed scan, the rule of the 2026-12-03 table). The splines enter only through the basis matrices (``paths =
   B @ ctrl``), so one compiled rollout gradient w.r.t. the paths serves every ``P``; the
   two matmuls of the chain rule are inside the timed call.
 - **MuJoCo finite differences**: forward differences of the same kind of cost,

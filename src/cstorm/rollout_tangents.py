@@ -46,11 +46,11 @@ primal scan, the step Jacobian, the grid-point Jacobian), which is why it is opt
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.custom_derivatives import SymbolicZero
+
+from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero
 
 BATCH = 256  # steps per batch of step Jacobians (bounds temporaries; 256 x n_y x n_w)
 
@@ -111,14 +111,6 @@ def _batched(f, args, K):
     args = jax.tree_util.tree_map(lambda a: fill(a).reshape((nb, bs) + a.shape[1:]), args)
     out = jax.lax.map(jax.vmap(f), args)
     return jax.tree_util.tree_map(lambda y: y.reshape((nb * bs,) + y.shape[2:])[:K], out)
-
-
-def _zero(t):
-    return t is None or isinstance(t, SymbolicZero)
-
-
-def _dense(t, like):
-    return jnp.zeros(jnp.shape(like), jnp.result_type(like)) if _zero(t) else t
 
 
 def _float0(x):
@@ -200,14 +192,14 @@ def _steps_jvp(fns, layout, run, primals, tangents):
                          jnp.where(keep[:, None, None], 0.0, D[:, nz:])], axis=1)
 
     # tangents of the inputs
-    dz0 = jnp.concatenate([_dense(dq0, q0)[iqp], _dense(dv0, v0)[ivp]])
+    dz0 = jnp.concatenate([_instantiate(dq0)[iqp], _instantiate(dv0)[ivp]])
     if ukeys:
-        dU = jnp.concatenate([flat(_dense(dxf[k], xf[k])).reshape(K, -1) for k in ukeys], axis=1)
+        dU = jnp.concatenate([flat(_instantiate(dxf[k])).reshape(K, -1) for k in ukeys], axis=1)
     else:
         dU = jnp.zeros((K, 0), D.dtype)
     R = RP = None
-    if not all(_zero(t) for t in jax.tree_util.tree_leaves(dconsts, is_leaf=_zero)):
-        dc = jax.tree_util.tree_map(lambda t, c: _dense(t, c), dconsts, consts, is_leaf=_zero)
+    if _any_nonzero(dconsts):
+        dc = jax.tree_util.tree_map(_instantiate, dconsts, is_leaf=_is_zero)
 
         def r_of(w, w0, q, v, xik):
             return (jax.jvp(lambda c: G(w, c, q, v, xik), (consts,), (dc,))[1],
@@ -284,10 +276,10 @@ def _contact_jvp(fn_c, primals, tangents):
 
     # one Jacobian per output leaf (so that XLA drops the ones nobody uses)
     x = jnp.concatenate([q, v])
-    dx = jnp.concatenate([_dense(dq, q), _dense(dv, v)])
+    dx = jnp.concatenate([_instantiate(dq), _instantiate(dv)])
     dys = [Jl @ dx for Jl in jax.jacfwd(fleaves)(x, consts)]
-    if not all(_zero(t) for t in jax.tree_util.tree_leaves(dconsts, is_leaf=_zero)):
-        dc = tuple(_dense(t, c) for t, c in zip(dconsts, consts))
+    if _any_nonzero(dconsts):
+        dc = tuple(_instantiate(t) for t in dconsts)
         extra = jax.jvp(lambda c: fleaves(x, c), (consts,), (dc,))[1]
         dys = [a + b for a, b in zip(dys, extra)]
     douts = [_float0(y) for y in leaves]

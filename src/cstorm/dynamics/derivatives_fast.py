@@ -72,6 +72,11 @@ def _instantiate(t):
     return t
 
 
+def _any_nonzero(tree):
+    """Whether any tangent leaf of ``tree`` is not a symbolic zero."""
+    return not all(_is_zero(t) for t in jax.tree_util.tree_leaves(tree, is_leaf=_is_zero))
+
+
 def ambient_to_tangent(model, q, dq):
     """Map an ambient configuration tangent ``dq`` (nq,) at ``q`` to the body-frame tangent
     (nv,) of ``integrate(model, q, .)`` (radial quaternion components dropped)."""
@@ -105,10 +110,9 @@ def _jvp(active, primals, tangents):
         dy = dy + r.dtau_passive @ dt
     if f_ext is not None and not _is_zero(df):
         dy = dy + jnp.einsum("ibk,bk->i", r.df_ext, df)
-    leaves = jax.tree_util.tree_leaves(dmodel, is_leaf=lambda x: isinstance(x, SymbolicZero))
-    if not all(_is_zero(t) for t in leaves):
+    if _any_nonzero(dmodel):
         # design derivatives: forward mode through the plain algorithm, model leaves only
-        dm = jax.tree_util.tree_map(_instantiate, dmodel, is_leaf=lambda x: isinstance(x, SymbolicZero))
+        dm = jax.tree_util.tree_map(_instantiate, dmodel, is_leaf=_is_zero)
 
         def y_of_model(m):
             ta, ap = _hybrid(m, q, v, a_active, tau_passive, active, f_ext)

@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import ProblemError
-from ..simulate import RolloutLayout, active_paths, rollout, time_grid, INTEGRATORS
+from ..simulate import RolloutLayout, active_paths, rollout, time_grid, DERIVATIVES, INTEGRATORS
 from ..trajectory import QuinticBSpline
 from . import costs as _costs
 from . import constraints as _cons
@@ -248,8 +248,6 @@ class MotionProblem:
         if jacobian not in ("auto", "fwd", "rev"):
             raise ProblemError(f"MotionProblem: jacobian must be 'auto', 'fwd' or 'rev', got {jacobian!r}")
         self.jacobian_mode = jacobian
-        from ..simulate import DERIVATIVES
-
         if derivatives not in DERIVATIVES:
             raise ProblemError(f"MotionProblem: derivatives must be one of {DERIVATIVES}, got {derivatives!r}")
         self.derivatives = derivatives

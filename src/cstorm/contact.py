@@ -310,6 +310,7 @@ from .errors import InputError
 from .geometry.closed_form import point_shape
 from .geometry.distance import signed_distance
 from .geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
+from .contact_jacobians import _value as _plane_value_impl, plane_points
 from .dynamics import _checks
 from .dynamics.kinematics import joint_placements, world_placements
 from . import spatial as _sp
@@ -566,7 +567,21 @@ def _world_twists(model, Rs, ps, Ss, oR, v):
     return jnp.einsum("bij,bj->bi", R, tw[:, :3]), jnp.einsum("bij,bj->bi", R, tw[:, 3:])
 
 
-def contact_forces(model, env: Environment, params, q, v) -> ContactData:
+def _slice_params(P, i0, i1, k):
+    """ContactParams for points ``i0:i1`` of ``k`` (leaves scalars or (k,))."""
+    if i0 == 0 and i1 == k:
+        return P
+    fields = {name: (getattr(P, name)[i0:i1] if np.ndim(getattr(P, name)) else getattr(P, name))
+              for name in P._data_fields}
+    return _pytree.replace(P, **fields)
+
+
+def _plane_value(model, q, v, feats, params, bidx):
+    """`plane_points` without its derivative rule (plain autodiff; the test oracle)."""
+    return _plane_value_impl(tuple(bidx), model, q, v, feats, params)[:6]
+
+
+def contact_forces(model, env: Environment, params, q, v, *, jacobians: str = "analytic") -> ContactData:
     """Smooth penalty contact forces between a robot and its environment, and the body
     wrenches they make.
 
@@ -635,7 +650,15 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
 
     Works under ``jit``, ``vmap`` and ``grad``/``jacfwd`` (w.r.t. q, v, model, env and
     params leaves). Unknown geom or obstacle names in ``env.pairs`` raise `InputError`.
+
+    ``jacobians``: ``"analytic"`` (default): the plane-pair points carry the analytic
+    derivative rule of `cstorm.contact_jacobians` (the same values; their JVP w.r.t.
+    ``(q, v)`` costs O(k nv) instead of forward mode through the kinematics);
+    ``"autodiff"``: plain JAX differentiation of the same code (the reference the rule
+    is tested against). Other pairs are always differentiated by JAX.
     """
+    if jacobians not in ("analytic", "autodiff"):
+        raise InputError(f"contact_forces: jacobians must be 'analytic' or 'autodiff', got {jacobians!r}")
     if not isinstance(env, Environment):
         raise InputError(f"contact_forces: env must be a cstorm Environment, got {type(env).__name__}")
     q = _checks.config(model, q, "contact_forces")
@@ -648,16 +671,19 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
         z1, z3 = jnp.zeros((0,), dtype), jnp.zeros((0, 3), dtype)
         return ContactData(z1, z3, z3, z3, z3, z1, z3, z3, jnp.zeros((nb, 6), dtype), (), (), ())
 
-    Rs, ps, Ss = joint_placements(model, q)
-    oR, op = world_placements(model, Rs, ps)
-    Rw, pw = jnp.stack(oR), jnp.stack(op)
-    w, vo = _world_twists(model, Rs, ps, Ss, oR, v)
+    kp = sum(m for _, _, m in lay.plane_pairs)
+    if kp < k:  # kinematics for the other pairs (the plane block computes its own)
+        Rs, ps, Ss = joint_placements(model, q)
+        oR, op = world_placements(model, Rs, ps)
+        Rw, pw = jnp.stack(oR), jnp.stack(op)
+        w, vo = _world_twists(model, Rs, ps, Ss, oR, v)
 
     def point_velocity(b, x):  # b: static index array, x: (m, 3) world points
         return vo[b] + jnp.cross(w[b], x - pw[b])
 
     ds, p_rob, p_obs, ns, vel, app = [], [], [], [], [], []
-    # --- plane pairs: all features stacked, one array computation -------------------
+    # --- plane pairs: all features stacked, one array computation with analytic
+    # derivatives w.r.t. (q, v) (`cstorm.contact_jacobians`) ----------------------------
     if lay.plane_pairs:
         feats = {}
         Pb, rad, Nw, off, bidx = [], [], [], [], []
@@ -674,14 +700,11 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
             off.append(jnp.broadcast_to(ob.shape.offset + N @ ob.pose[:3, 3], (m,)))
             bidx += [model.geom_bodies[g]] * m
         Pb, rad, Nw, off = (jnp.concatenate(a) for a in (Pb, rad, Nw, off))
-        bidx = np.asarray(bidx)
-        # R_b c as a sum over R's columns: gathers of (k, 3), never a (k, 3, 3) array,
-        # so a rollout's stage loop keeps every buffer small (see `cstorm.simulate`)
-        x = Rw[bidx, :, 0] * Pb[:, 0:1] + Rw[bidx, :, 1] * Pb[:, 1:2] + Rw[bidx, :, 2] * Pb[:, 2:3] + pw[bidx]
-        pr = x - rad[:, None] * Nw
-        d = jnp.sum(Nw * x, axis=1) - rad - off
+        plane_fn = plane_points if jacobians == "analytic" else _plane_value
+        d, pr, u, N_mag_p, f_t_p, W_p = plane_fn(model, q, v, (Pb, rad, Nw, off), _slice_params(P, 0, kp, k),
+                                                 tuple(bidx))
         ds.append(d), p_rob.append(pr), p_obs.append(pr - d[:, None] * Nw), ns.append(Nw)
-        vel.append(point_velocity(bidx, pr)), app.append(pr)
+        vel.append(u), app.append(pr)
     # --- features vs bounded obstacles (boxes: platform tops, steps) ---------------------
     for g, o, m in lay.shape_pairs:
         ob = env.obstacles[o]
@@ -715,8 +738,13 @@ def contact_forces(model, env: Environment, params, q, v) -> ContactData:
         vel.append(point_velocity(ba, mid) - point_velocity(bb, mid)), app.append(mid)
     d, pr, po, n, vv, ap = (jnp.concatenate(a) for a in (ds, p_rob, p_obs, ns, vel, app))
 
-    f, N_mag, f_t = point_contact_force(d, n, vv, P)
-    W = jnp.concatenate([jnp.cross(ap, f), f], axis=1)  # (k, 6) wrenches about the world origin
+    if kp < k:  # the other points' forces and wrenches (k, 6) about the world origin
+        f, N_mag, f_t = point_contact_force(d[kp:], n[kp:], vv[kp:], _slice_params(P, kp, k, k))
+        W = jnp.concatenate([jnp.cross(ap[kp:], f), f], axis=1)
+        if kp:
+            N_mag, f_t, W = (jnp.concatenate(a) for a in ((N_mag_p, N_mag), (f_t_p, f_t), (W_p, W)))
+    else:
+        N_mag, f_t, W = N_mag_p, f_t_p, W_p
     A = np.zeros((nb, k))
     A[np.asarray(lay.body), np.arange(k)] = 1.0
     oth = np.asarray(lay.other_body)

@@ -20,7 +20,7 @@ after the other. Here instead:
    over steps in batches of at most `BATCH`): large batched array operations instead
    of a long chain of small kernels, with the analytic hybrid-dynamics Jacobians inside
    (`derivatives_fast`) and the contact forces' Jacobian taken once per stage w.r.t.
-   ``(q, v)`` (`dense_contact`);
+   ``(q, v)`` and composed with the dynamics' (`contact_hybrid`);
 3. the tangent map is then linear algebra: ``w_k = D_k^{zu} du_k (+ r_k)``, the
    recurrence ``dz_{k+1} = D_k^{zz} dz_k + w_k`` (a scan of ``n_z x n_z`` matrix-vector
    products), ``dJ = sum_k D_k^{J} [dz_k; du_k]`` and ``do_k = E_k [dz_k; du_k^0]``,
@@ -242,29 +242,92 @@ _steps.defjvp(_steps_jvp, symbolic_zeros=True)
 
 
 # ---------------------------------------------------------------------------------------
-# Contact forces with a Jacobian-first derivative rule
+# Contact forces and hybrid dynamics, composed at the Jacobian level
 # ---------------------------------------------------------------------------------------
-def dense_contact(contact_fn, q, v):
-    """``contact_fn(q, v)`` whose JVP evaluates the Jacobian w.r.t. ``(q, v)`` once
-    (``jacfwd``, ``nq + nv`` directions) and applies it to every tangent: inside the
-    step Jacobians of `_steps_jvp` the tangents are ``n_z + n_u`` wide, more than the
-    ``nq + nv`` inputs the contact model actually has. Tangents of closed-over values
-    (environment, contact parameters) are pushed through by a plain JVP, and only when
-    they are nonzero."""
+def contact_hybrid(model, contact_fn, q, v, a_active, tau_passive, active):
+    """``f_ext, cdata = contact_fn(q, v)`` then `cstorm.hybrid_dynamics` with that
+    ``f_ext``, with one JVP rule for both: the contact Jacobian ``J_f`` w.r.t. ``(q, v)``
+    (``jacfwd``, ``nq + nv`` directions; with `cstorm.contact_forces` its analytic rule
+    for ground points) is composed with the hybrid algorithm's analytic ``dy/df_ext``
+    once, ``(nv, nq + nv)``, and applied to every tangent: inside the step Jacobians of
+    `_steps_jvp` the tangents are ``n_z + n_u`` wide, more than the ``nq + nv`` inputs
+    of the contact model, and each costs an ``nv``-row product instead of a pass through
+    the contact code and the ``n_bodies x 6`` wrenches. Tangents of closed-over values
+    (environment, contact parameters) and of the model are pushed through by plain JVPs,
+    and only when they are nonzero. Measured on the hopper benchmark (500 RK4 steps with
+    contact, 30 parameters): reverse-mode gradient 101.5 -> 84 ms with the analytic
+    contact rule, same process.
+
+    Args:
+      model: `Model`. contact_fn: ``(q, v) -> (f_ext (n_bodies, 6), cdata)`` (may close
+        over traced values; they are hoisted and differentiated). q (nq,), v (nv,),
+        a_active (n_active,), tau_passive (n_passive,), active: static tuple of nv bools.
+    Returns:
+      ``(tau_active, a_passive, f_ext, cdata)``.
+    """
     fn_c, consts = jax.closure_convert(contact_fn, q, v)
-    return _contact(fn_c, tuple(consts), q, v)
+    return _ch(fn_c, tuple(active), model, tuple(consts), q, v, a_active, tau_passive)
 
 
-def _contact_primal(fn_c, consts, q, v):
-    return fn_c(q, v, *consts)
+def _ch_primal(fn_c, active, model, consts, q, v, a_active, tau_passive):
+    from .dynamics.hybrid import _hybrid
+
+    f_ext, cdata = fn_c(q, v, *consts)
+    tau_a, a_p = _hybrid(model, q, v, a_active, tau_passive, active, f_ext)
+    return tau_a, a_p, f_ext, cdata
 
 
-_contact = jax.custom_jvp(_contact_primal, nondiff_argnums=(0,))
+_ch = jax.custom_jvp(_ch_primal, nondiff_argnums=(0, 1))
 
 
-def _contact_jvp(fn_c, primals, tangents):
-    consts, q, v = primals
-    dconsts, dq, dv = tangents
+def _ch_jvp(fn_c, active, primals, tangents):
+    from .dynamics.derivatives import _hybrid_derivatives
+    from .dynamics.derivatives_fast import ambient_to_tangent
+    from .dynamics.hybrid import _hybrid
+
+    model, consts, q, v, a_active, tau_passive = primals
+    dmodel, dconsts, dq, dv, da, dt = tangents
+    nb = model.n_bodies
+    out, Js, extra, dcontact = _contact_tangents(fn_c, consts, dconsts, q, v, dq, dv)
+    f_ext = out[0]
+    dx = jnp.concatenate([_instantiate(dq), _instantiate(dv)])
+
+    r = _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext)
+    Df = r.df_ext.reshape(model.nv, nb * 6)
+    Mx = Df @ Js[0].reshape(nb * 6, -1)  # dy/d(q, v) through f_ext, (nv, nq + nv) ambient
+    dy = Mx @ dx
+    if not _is_zero(dq):
+        dy = dy + r.dq @ ambient_to_tangent(model, q, dq)
+    if not _is_zero(dv):
+        dy = dy + r.dv @ dv
+    if not _is_zero(da) and da.shape[0]:
+        dy = dy + r.da_active @ da
+    if not _is_zero(dt) and dt.shape[0]:
+        dy = dy + r.dtau_passive @ dt
+    if extra is not None:
+        dy = dy + Df @ extra[0].reshape(-1)
+    act = np.array(active, dtype=bool)
+    ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
+    if _any_nonzero(dmodel):  # design derivatives of the dynamics (f_ext held fixed)
+        dm = jax.tree_util.tree_map(_instantiate, dmodel, is_leaf=_is_zero)
+
+        def y_of_model(m):
+            ta, ap = _hybrid(m, q, v, a_active, tau_passive, active, f_ext)
+            return jnp.zeros(model.nv, dtype=r.y.dtype).at[ia].set(ta).at[ip].set(ap)
+
+        dy = dy + jax.jvp(y_of_model, (model,), (dm,))[1]
+    primal = (r.y[ia], r.y[ip], f_ext, out[1])
+    return primal, (dy[ia], dy[ip], dcontact[0], dcontact[1])
+
+
+_ch.defjvp(_ch_jvp, symbolic_zeros=True)
+
+
+def _contact_tangents(fn_c, consts, dconsts, q, v, dq, dv):
+    """The contact model's value, its Jacobians w.r.t. ``x = (q, v)`` (``jacfwd``, one per
+    float output leaf, shapes ``leaf.shape + (nq + nv,)``; XLA drops the unused ones),
+    the JVP along nonzero tangents of its closed-over values (or None), and the tangent
+    of the whole output for ``(dq, dv)``."""
     out = fn_c(q, v, *consts)
     leaves, tree = jax.tree_util.tree_flatten(out)
     fl = [i for i, y in enumerate(leaves) if _is_float(y)]
@@ -274,10 +337,11 @@ def _contact_jvp(fn_c, primals, tangents):
         lv = jax.tree_util.tree_leaves(fn_c(x[:nq], x[nq:], *c))
         return [lv[i] for i in fl]
 
-    # one Jacobian per output leaf (so that XLA drops the ones nobody uses)
     x = jnp.concatenate([q, v])
     dx = jnp.concatenate([_instantiate(dq), _instantiate(dv)])
-    dys = [Jl @ dx for Jl in jax.jacfwd(fleaves)(x, consts)]
+    Js = jax.jacfwd(fleaves)(x, consts)
+    dys = [Jl @ dx for Jl in Js]
+    extra = None
     if _any_nonzero(dconsts):
         dc = tuple(_instantiate(t) for t in dconsts)
         extra = jax.jvp(lambda c: fleaves(x, c), (consts,), (dc,))[1]
@@ -285,7 +349,4 @@ def _contact_jvp(fn_c, primals, tangents):
     douts = [_float0(y) for y in leaves]
     for i, dyi in zip(fl, dys):
         douts[i] = dyi
-    return out, jax.tree_util.tree_unflatten(tree, douts)
-
-
-_contact.defjvp(_contact_jvp, symbolic_zeros=True)
+    return out, Js, extra, jax.tree_util.tree_unflatten(tree, douts)

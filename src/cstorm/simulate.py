@@ -230,22 +230,20 @@ def _with_active(layout, q, v, qa, va):
 def _stage(model, layout, q, v, qa, va, aa, t, contact_fn, cost_fn, params, derivatives="analytic"):
     """Dynamics at one instant. q, v: full vectors whose passive entries are the
     integrated state; the active entries are overwritten with (qa, va). ``derivatives``:
-    "analytic" (the custom-JVP hybrid dynamics), "parallel" (that, and the contact
-    forces' JVP evaluates their Jacobian first: `rollout_tangents.dense_contact`) or
+    "analytic" (the custom-JVP hybrid dynamics), "parallel" (that, with the contact
+    forces' Jacobian evaluated first and composed with it: `rollout_tangents.contact_hybrid`) or
     "autodiff". Returns (q, v, a (nv,), tau (nv,), contact data, running-cost integrand)."""
     iva, ivp = np.array(layout.va_idx, int), np.array(layout.vp_idx, int)
     q, v = _with_active(layout, q, v, qa, va)
     pf = passive_forces(model, q, v)
-    if contact_fn is None:
-        f_ext, cdata = None, None
-    elif derivatives == "parallel":
-        from .rollout_tangents import dense_contact
+    if contact_fn is not None and derivatives == "parallel":
+        from .rollout_tangents import contact_hybrid
 
-        f_ext, cdata = dense_contact(contact_fn, q, v)
+        tau_a, a_p, f_ext, cdata = contact_hybrid(model, contact_fn, q, v, aa, pf[ivp], layout.active)
     else:
-        f_ext, cdata = contact_fn(q, v)
-    hyb = _hybrid if derivatives == "autodiff" else _hybrid_fast
-    tau_a, a_p = hyb(model, q, v, aa, pf[ivp], layout.active, f_ext)
+        f_ext, cdata = (None, None) if contact_fn is None else contact_fn(q, v)
+        hyb = _hybrid if derivatives == "autodiff" else _hybrid_fast
+        tau_a, a_p = hyb(model, q, v, aa, pf[ivp], layout.active, f_ext)
     a = jnp.zeros(model.nv, dtype=v.dtype)
     tau = pf
     if len(iva):

@@ -52,7 +52,11 @@ import numpy as np
 
 from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero
 
-BATCH = 256  # steps per batch of step Jacobians (bounds temporaries; 256 x n_y x n_w)
+# steps per batch of step Jacobians: bounds the temporaries (BATCH x n_y x n_w each).
+# One batch is faster than several (the batches run as a loop): hopper, 500 steps,
+# 30-parameter gradient 33.8 against 40.7 ms without contact, 75.7 against 85 ms with
+# it, and it compiles in 48 instead of 59 s (batches of 512 against 256)
+BATCH = 1024
 
 
 def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run):

@@ -52,8 +52,10 @@ Break-even parameter count: MuJoCo's finite-difference time grows linearly with 
 ``P*`` is where the fitted line ``t_fd(P) = a + b (P + 1)`` (measured at several ``P``)
 meets cstorm's gradient time at 30 parameters.
 
-The latest results are in benchmarks/README.md (2026-12-03, a quiet machine: every
-target of issue 4 missed there, MuJoCo ~1x at 30 parameters). Earlier results
+The latest results are in benchmarks/README.md (2026-12-03, session 16: with the
+time-parallel rule and the analytic ground-contact derivatives, 2.5x faster than MuJoCo
+FD at 30 parameters with and without contact, 23-26x at 300; the notes there list every
+run). Earlier results, with the rule of that time
 (2026-11-23, full run: 500 steps; x86_64, 2 cores, jax 0.10.2 cpu, the machine
 **shared with three other engineers' jobs, load average 3.5-5**, so both sides ran
 slower than on an idle machine and ratios carry perhaps +-30% noise; MuJoCo FD used both

@@ -144,6 +144,43 @@ def test_diverged_final_iterate_keeps_the_last_sound_stage(problem, monkeypatch)
     assert np.all(np.isfinite(s.trajectory["q"])) and np.max(np.abs(s.x)) < 1e3
 
 
+def test_failed_stage_is_refined_through_midpoints(problem, monkeypatch):
+    """With ``solve_options["refine"]``, a stage that fails is run again from where it
+    started after a stage halfway there (geometric mean of the targets), recursively up
+    to the given depth. Here the solver "fails" every stage whose target jumps by more
+    than pi/3 over the last one reached: pi/4 -> pi needs two halvings (pi/2, then
+    pi/sqrt(2))."""
+    import importlib
+
+    S = importlib.import_module("cstorm.optimize.solve")
+    real = S._run_slsqp
+    reached = []
+
+    def run(ev, x, tracker, si, params, it, tol, options):
+        t = float(params["target"])
+        if reached and t - reached[-1] > np.pi / 3 + 1e-9:
+            return x, False, "SLSQP: (test) too far", 0  # unmoved: violates the new target
+        out = real(ev, x, tracker, si, params, it, tol, options)
+        reached.append(t)
+        return out
+
+    monkeypatch.setattr(S, "_run_slsqp", run)
+    monkeypatch.setitem(problem.solve_options, "refine", 2)
+    s = solve(problem, continuation={"target": [np.pi / 4, np.pi]}, max_iter=300)
+    assert s.success, s.message
+    np.testing.assert_allclose(reached, [np.pi / 4, np.pi / 2, np.pi / np.sqrt(2), np.pi], rtol=1e-12)
+    st = s.info["stages"]
+    assert [r["stage"] for r in st] == [0, 1, 1, 1, 1, 1]
+    assert [bool(r.get("refined")) for r in st] == [False, True, False, True, False, False]
+    assert [r.get("refinement_depth", 0) for r in st] == [0, 0, 1, 1, 2, 2]
+    assert abs(s.trajectory["q"][-1][0] - np.pi) < 1e-3
+    # without refinement the same solve fails at the jump
+    monkeypatch.setitem(problem.solve_options, "refine", 0)
+    reached.clear()
+    s0 = solve(problem, continuation={"target": [np.pi / 4, np.pi]}, max_iter=300)
+    assert not s0.success and "too far" in s0.message
+
+
 def test_checkpoint_and_resume(problem, solution, tmp_path):
     ck = tmp_path / "ck.npz"
 

@@ -142,6 +142,11 @@ class MotionProblem:
         41 s but its compile 53 s against 22 s, so it pays off only over long solves) or
         ``"autodiff"`` (through everything; the reference).
         Same values; derivatives equal to rounding.
+      contact_jacobians: how the contact forces of ``env``/``contact`` are differentiated
+        (`cstorm.contact.contact_forces`'s ``jacobians``): ``"analytic"`` (default; the
+        ground contact points' derivative rule) or ``"autodiff"``. Same values;
+        derivatives equal to about 1e-14, which can still send SLSQP down another path
+        through a sensitive plan (the tumbler's, see `cstorm.examples.tumbler`).
       q_bound, v_bound: divergence bounds of the rollout.
       name: a label for displays and files.
       free_initial: optional dict ``joint name -> "q" | "v" | "qv"``: these parts of the
@@ -173,7 +178,8 @@ class MotionProblem:
                  q_final_active=None, v_final_active=None, rest_end=False, rest_start=False, costs=None,
                  constraints=None, params=None, integrator="rk4", n_path_samples=50, initial_guess=None,
                  jacobian="auto", segment=None, q_bound=1e4, v_bound=1e4, name="motion", success_criteria=None,
-                 free_initial=None, shooting=1, node_guess=None, derivatives="analytic"):
+                 free_initial=None, shooting=1, node_guess=None, derivatives="analytic",
+                 contact_jacobians="analytic"):
         require_x64("MotionProblem")
         self.model = model
         self.name = str(name)
@@ -254,6 +260,10 @@ class MotionProblem:
         self.derivatives = derivatives
         self.segment = segment
         self.q_bound, self.v_bound = float(q_bound), float(v_bound)
+        if contact_jacobians not in ("analytic", "autodiff"):
+            raise ProblemError(f"MotionProblem: contact_jacobians must be 'analytic' or 'autodiff', got "
+                               f"{contact_jacobians!r}")
+        self.contact_jacobians = contact_jacobians
         self._contact_fn = self._make_contact_fn(env, contact, contact_fn)
         # boundary conditions (static pattern) and sizes
         self._bc_pattern = dict(q0=True, v0=True, a0=self.rest_start, q1=self.qa_final is not None,
@@ -344,7 +354,7 @@ class MotionProblem:
         from ..contact import contact_forces
 
         def fn(model, env_, params_, q, v):
-            out = contact_forces(model, env_, params_, q, v)
+            out = contact_forces(model, env_, params_, q, v, jacobians=self.contact_jacobians)
             return out.f_ext, out
         return fn
 

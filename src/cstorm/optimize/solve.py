@@ -197,6 +197,17 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
         set ``"trust_region"`` (its own box radius, see ``solve_options["trust_region"]``),
         ``"tol"`` and ``"max_iter"`` (its own optimality tolerance and iteration limit,
         instead of ``tol``/``max_iter`` or the intermediate ones).
+        Refinement of failed stages: with ``problem.solve_options["refine"] = n`` (default
+        0: off), a stage of a continuation or schedule that fails (the solver stops
+        unsuccessfully with a violation above ``solve_options["refine_violation"]``,
+        default 1e-2, or its end diverges) is run again from where it started, after a
+        stage at the parameters halfway from the previous stage's (geometric mean where
+        both are positive, else arithmetic; same level and stage options as the failed
+        one), up to ``n`` halvings deep. ``Solution.info["stages"]`` lists the failed
+        attempts too (``"refined": True``; the inserted stages carry
+        ``"refinement_depth"``) under their plan's stage number. A stage whose
+        parameters equal the previous stage's (only its constraint level changes) is not
+        refined.
       max_iter: iteration limit per stage. tol: optimality tolerance (SLSQP ``ftol``,
         IPOPT ``tol``). constraint_tol: largest constraint violation counted as success.
       verbose: print one line per iteration (iteration, stage, cost, violation, step,
@@ -278,28 +289,39 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     ev = None
     last_sound = None  # (x, stage) of the last stage end whose rollout did not diverge
     nev_done = 0  # evaluations of the finished stages' evaluators
-    for si in range(start_stage, len(plan)):
-        sparams, level = plan[si]
+    # the stages still to run: (plan index, params, level, the schedule entry's own
+    # options, refinement depth); a failed stage may insert midpoint stages before it
+    refine = int(problem.solve_options.get("refine", 0))
+    refine_violation = float(problem.solve_options.get("refine_violation", 1e-2))
+    queue = [dict(index=i, params=plan[i][0], level=plan[i][1],
+                  extra=dict(schedule[i]) if schedule is not None else {}, depth=0)
+             for i in range(start_stage, len(plan))]
+    prev_params = ({**problem.params, **{k: np.asarray(v, float) for k, v in plan[start_stage - 1][0].items()}}
+                   if start_stage > 0 else None)
+    k = 0
+    while k < len(queue):
+        st = queue[k]
+        si, sparams, level = st["index"], st["params"], st["level"]
         nev_done += ev.nev if ev is not None else 0
-        params_now = {**problem.params, **{k: np.asarray(v, float) for k, v in plan[si][0].items()}}
+        params_now = {**problem.params, **{kk: np.asarray(v, float) for kk, v in sparams.items()}}
         data = problem.data(params=sparams, q0=q0, v0=v0)
         me, mi = problem.constraint_masks(level)
         ev = _Evaluator(problem, data, me, mi)
+        x_start = np.array(x, float)
         f_init, *_rest = ev.at(x)
-        if _rest[2] and si == start_stage:  # initial guess diverges
+        if _rest[2] and k == 0:  # initial guess diverges
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
         ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
-        ev.bounds = _stage_bounds(problem, x, schedule[si].get("trust_region") if schedule is not None else None)
+        ev.bounds = _stage_bounds(problem, x, st["extra"].get("trust_region"))
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
             # intermediate stages only warm-start the next one: the problem may loosen them
-            last = si == len(plan) - 1
+            last = k == len(queue) - 1
             s_tol = tol if last else problem.solve_options.get("intermediate_tol", tol)
             s_it = max_iter if last else min(max_iter, problem.solve_options.get("intermediate_max_iter", max_iter))
-            if schedule is not None:  # a stage's own tolerance / iteration limit
-                s_tol = float(schedule[si].get("tol", s_tol))
-                s_it = int(schedule[si].get("max_iter", s_it))
+            s_tol = float(st["extra"].get("tol", s_tol))  # a stage's own tolerance / iteration limit
+            s_it = int(st["extra"].get("max_iter", s_it))
             if method == "slsqp":
                 x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
             elif method == "trust-constr":
@@ -316,12 +338,32 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message,
                                     iterations=None))
             break
-        stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message, iterations=nit,
-                                cost=ev.at(x)[0], violation=ev.violation(x)))
-        if not ev.at(x)[3]:
+        end = ev.at(x)
+        viol_end = ev.violation(x)
+        info_row = dict(stage=si, params=_jsonable(sparams), level=level, message=message, iterations=nit,
+                        cost=end[0], violation=viol_end)
+        if st["depth"]:
+            info_row["refinement_depth"] = st["depth"]
+        failed = (not solver_ok and viol_end > refine_violation) or bool(end[3])
+        mid = _midpoint(prev_params, params_now) if failed and st["depth"] < refine else None
+        if mid is not None:
+            # back to where this stage started, and approach its parameters in two steps
+            info_row["refined"] = True
+            stages_info.append(info_row)
+            if verbose:
+                print(f"stage {si} ({_jsonable(sparams)}, constraint level {level}): {message} (violation "
+                      f"{viol_end:.3g}); refining: from this stage's start through {_jsonable(mid)}",
+                      file=tracker.out)
+            x = x_start
+            queue[k:k + 1] = [dict(st, params=mid, depth=st["depth"] + 1), dict(st, depth=st["depth"] + 1)]
+            continue
+        stages_info.append(info_row)
+        if not end[3]:
             last_sound = (np.array(x, float), si)
         if verbose and len(plan) > 1:
             print(f"stage {si} ({_jsonable(sparams)}, constraint level {level}): {message}", file=tracker.out)
+        prev_params = params_now
+        k += 1
 
     # final evaluation at x with all constraints of the last stage's level
     if not interrupted and tracker.best is not None and ev is not None:
@@ -373,6 +415,27 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                    n_evaluations=nev_done + (ev.nev if ev else 0), info=info)
     sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
     return sol
+
+
+def _midpoint(a, b):
+    """Parameters halfway from stage parameters ``a`` to ``b`` (dicts of arrays with the
+    same keys): the geometric mean where both are positive (tolerances and factors that
+    ramp over decades), else the arithmetic mean. None if ``a`` is None or equals ``b``
+    (nothing to refine)."""
+    if a is None:
+        return None
+    mid, moved = {}, False
+    for key, vb in b.items():
+        vb = np.asarray(vb, float)
+        va = np.asarray(a.get(key, vb), float)
+        if va.shape != vb.shape:
+            return None
+        if np.array_equal(va, vb):
+            mid[key] = vb
+            continue
+        moved = True
+        mid[key] = np.where((va > 0) & (vb > 0), np.sqrt(np.abs(va * vb)), 0.5 * (va + vb))
+    return {key: (float(v) if v.ndim == 0 else v.tolist()) for key, v in mid.items()} if moved else None
 
 
 def _objective_scale(spec, ev, x, first_step=1.0):

@@ -214,6 +214,16 @@ def test_sequence_segments_chain(problem, solution):
     assert s.trajectory["q"].shape[0] == 2 * problem.n_steps + 1
 
 
+def test_sequence_compiles_later_segments_in_the_background(problem):
+    """A sequence builds its later segments' compiled functions in a background thread
+    while the first one solves; the solve then finds them compiled for the very
+    arguments it calls them with (one compiled signature each, none made twice)."""
+    other = examples.get("acrobot")(t_final=3.0, n_ctrl=14, dt=0.02)
+    s = solve(MotionSequence([problem, other]), max_iter=2, continuation={"target": [np.pi]})
+    assert len(s.segments) == 2
+    assert {k: f._cache_size() for k, f in other._compiled.items()} == {"fun_jac": 1, "trajectory": 1}
+
+
 def test_problem_validation():
     m = acrobot_model()
     with pytest.raises(ProblemError, match="no joint named"):

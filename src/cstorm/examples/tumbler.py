@@ -73,11 +73,16 @@ the arms without it tips the robot onto its face.
 Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
 ------------------------------------------------------------------------
 - The whole sequence (`tumbler`, ``cstorm solve tumbler``, ``cstorm demo``): **solved
-  chained** (session 13), every segment from the previous one's end: 24/24 criteria, 528
-  SLSQP iterations (135 / 237 / 78 / 78), 593 s including 59 s of compile (load ~1), 664
-  s for the whole ``cstorm demo`` with its time-step checks, fidelity re-simulations
-  and animation; costs 13.715 + 4.248 + 16.877 + 0.155 = 34.99; every segment's final
-  state within 0.36 mm / 0.048 deg of its re-simulation at dt/4 and with DOP853. What
+  chained** (session 17), every segment from the previous one's end: 24/24 criteria, 510
+  SLSQP iterations (203 / 148 / 82 / 77), 424 s including 19 s of compile (load ~1.2;
+  the later segments compile while the handstand solves), 473 s for the whole ``cstorm
+  demo``; costs 12.589 + 2.902 + 16.877 + 0.155 = 32.52; every segment's final state
+  within 0.14 mm / 0.012 deg of its re-simulation at dt/4 and with DOP853. Session 13:
+  528 iterations (135 / 237 / 78 / 78), 593 s, costs 13.715 + 4.248 + 16.877 + 0.155.
+  The handstand's path depends on rounding: with the analytic contact derivatives (equal
+  to autodiff's to 1e-14) its 1.2x stage stalled at violation 1.55, and once refined
+  (``solve_options["refine"]``) its last stage crept for 500 iterations; hence
+  ``contact_jacobians="autodiff"`` and ``refine = 2`` here. What
   makes it chain: the roll ends with its joints at `ROLL_END`'s (``roll_end="nominal"``;
   with free joints the roll from the solved handstand ended with the hip at -1.82 rad
   and -4.6 rad/s), and standing's guess comes up onto the feet from a neighbourhood of

@@ -24,7 +24,10 @@ class MotionSequence:
     """``MotionSequence(segments)``: a list of `MotionProblem` on the same model (the same
     joints, ``nq``, ``nv``). ``name`` labels displays and files. ``success_criteria``
     (optional, as for `MotionProblem`) are checked on the whole sequence's solution; each
-    segment's own criteria are checked on its segment solution."""
+    segment's own criteria are checked on its segment solution. While the first segment
+    solves, the later ones are compiled in a background thread (same results; on a
+    2-core machine the other core would idle); ``solve_options["precompile"] = False``
+    turns that off."""
 
     def __init__(self, segments, name="sequence", success_criteria=None):
         segments = list(segments)
@@ -55,7 +58,8 @@ class MotionSequence:
         from .solve import _solve_problem
         sols = []
         q0 = v0 = None
-        warm = _Precompiler(self.segments[1:]) if self.solve_options.get("precompile", True) else None
+        warm = (_Precompiler(self.segments[1:], first=self.segments[0])
+                if self.solve_options.get("precompile", True) else None)
         for k, seg in enumerate(self.segments):
             ck = None if checkpoint is None else f"{checkpoint}.seg{k}.npz"
             if warm is not None and k > 0:
@@ -108,10 +112,11 @@ class _Precompiler:
     ``wait(i)`` blocks until segment ``i`` of the list is compiled (or its compile
     failed: the solve then compiles it again and reports any error where it happens).
     Each segment's ``fun_jac`` and ``trajectory`` are compiled by evaluating them once at
-    its own initial guess and start state. ``MotionSequence.solve_options["precompile"]
+    its own initial guess and start state; a problem that appears twice (or is the first
+    segment, which the solve compiles itself) is skipped. ``MotionSequence.solve_options["precompile"]
     = False`` turns this off."""
 
-    def __init__(self, segments):
+    def __init__(self, segments, first=None):
         import jax
 
         self._done = [threading.Event() for _ in segments]
@@ -119,7 +124,12 @@ class _Precompiler:
         def run():
             import jax.numpy as jnp
 
+            seen = [first]
             for seg, ev in zip(segments, self._done):
+                if any(seg is s for s in seen):  # the same problem again: compiled once
+                    ev.set()
+                    continue
+                seen.append(seg)
                 try:
                     x, d = jnp.asarray(np.asarray(seg.x0, float)), seg.data()
                     jax.block_until_ready(seg.compiled("fun_jac")(x, d))

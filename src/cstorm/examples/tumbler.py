@@ -73,11 +73,14 @@ the arms without it tips the robot onto its face.
 Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
 ------------------------------------------------------------------------
 - The whole sequence (`tumbler`, ``cstorm solve tumbler``, ``cstorm demo``): **solved
-  chained** (session 17), every segment from the previous one's end: 24/24 criteria, 510
-  SLSQP iterations (203 / 148 / 82 / 77), 424 s including 19 s of compile (load ~1.2;
-  the later segments compile while the handstand solves), 473 s for the whole ``cstorm
-  demo``; costs 12.589 + 2.902 + 16.877 + 0.155 = 32.52; every segment's final state
-  within 0.14 mm / 0.012 deg of its re-simulation at dt/4 and with DOP853. Session 13:
+  chained** (session 17), every segment from the previous one's end: 24/24 criteria, 567
+  SLSQP iterations (237 / 136 / 116 / 78), 305 s including 30 s of compile (load ~1,
+  partly cached; the later segments compile while the handstand solves; the handstand
+  uses ``derivatives="parallel"``), 342 s for the whole ``cstorm demo``; costs 10.741 +
+  4.200 + 17.583 + 0.155 = 32.68; every segment's final state within 0.26 mm / 0.007
+  deg of its re-simulation at dt/4 and with DOP853. Before the parallel rule (same
+  session): 510 iterations (203 / 148 / 82 / 77), 424 s, costs 12.589 + 2.902 + 16.877 +
+  0.155. Session 13:
   528 iterations (135 / 237 / 78 / 78), 593 s, costs 13.715 + 4.248 + 16.877 + 0.155.
   The handstand's path depends on rounding: with the analytic contact derivatives (equal
   to autodiff's to 1e-14) its 1.2x stage stalled at violation 1.55, and once refined
@@ -514,6 +517,12 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
                                             pitch_trust=HANDSTAND_PITCH_TRUST)
         # the ramp's stages only warm-start the next one: a loose tolerance is enough
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60, first_step=HANDSTAND_FIRST_STEP)
+        # the time-parallel tangent rule: one values+Jacobian evaluation 405 vs 643 ms, its
+        # compile 37 vs 20 s; the chained demo's handstand 237 iterations in 186 s against
+        # 203 in 306 s (session 17), and the chain still solves (24/24); single shooting
+        # only (the multiple-shooting guess="bridge" was not measured with it)
+        if shooting == 1:
+            p.derivatives = "parallel"
         if guess == "bridge":
             T_ = p.t_final
             p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))

@@ -119,6 +119,29 @@ def _line(r):
             f"ratio {r['ratio']:.2f}, compile {r['compile_s']:.1f} s")
 
 
+def rollout_loss(m, act, hyb, q0, v0, dt=1e-3):
+    """The rollout benchmarks' scalar loss of the controls ``U`` (steps, n_active):
+    explicit Euler with ``lax.scan``, the ``act`` joints following ``U`` as
+    accelerations, the rest passive with damping -0.1 v, dynamics by ``hyb``
+    (`cs.hybrid_dynamics` or `hybrid_dynamics_fast`); sin of the final q, squared final
+    v, 1e-3 times the summed squared active torques."""
+    import cstorm as cs
+
+    ia = np.nonzero(act)[0]
+    ip = np.nonzero(~np.array(act))[0]
+
+    def loss(U):
+        def step(c, u):
+            q, v = c
+            ta, ap = hyb(m, q, v, u, -0.1 * v[ip], act)
+            a = jnp.zeros(m.nv).at[ia].set(u).at[ip].set(ap)
+            return (cs.integrate(m, q, v, dt), v + dt * a), jnp.sum(ta ** 2)
+
+        (q, v), e = jax.lax.scan(step, (q0, v0), U)
+        return jnp.sum(jnp.sin(q)) + jnp.sum(v ** 2) + 1e-3 * jnp.sum(e)
+    return loss
+
+
 def rollout_rows(models=("solo12",), steps=100, repeat=3):
     """Gradient of a scalar rollout loss (explicit Euler, lax.scan, free base passive,
     joints active) w.r.t. the controls: plain autodiff of `hybrid_dynamics` vs the custom
@@ -142,17 +165,9 @@ def rollout_rows(models=("solo12",), steps=100, repeat=3):
         q0 = jnp.asarray(m.neutral())
         v0 = jnp.asarray(rng.normal(size=m.nv) * 0.1)
         U = jnp.asarray(rng.normal(size=(steps, len(ia))))
-        dt = 1e-3
 
         def loss(hyb, U):
-            def step(c, u):
-                q, v = c
-                ta, ap = hyb(m, q, v, u, -0.1 * v[ip], act)
-                a = jnp.zeros(m.nv).at[ia].set(u).at[ip].set(ap)
-                return (cs.integrate(m, q, v, dt), v + dt * a), jnp.sum(ta ** 2)
-
-            (q, v), e = jax.lax.scan(step, (q0, v0), U)
-            return jnp.sum(jnp.sin(q)) + jnp.sum(v ** 2) + 1e-3 * jnp.sum(e)
+            return rollout_loss(m, act, hyb, q0, v0)(U)
 
         for mode, tr in (("grad (reverse)", jax.grad), ("jacfwd (forward)", jax.jacfwd)):
             times = {}

@@ -40,15 +40,10 @@ import warnings
 import numpy as np
 
 from benchmarks._common import best_of, erd_dir, time_compile
+from benchmarks.derivatives import MODELS, rollout_loss
 
 import jax
 import jax.numpy as jnp
-
-MODELS = {
-    "ur5": ("ur5 (6 DoF)", "ur_description/urdf/ur5_robot.urdf", None),
-    "solo12": ("solo12 (18 DoF)", "solo_description/robots/solo12.urdf", "free"),
-    "talos": ("talos_reduced (38 DoF)", "talos_data/robots/talos_reduced.urdf", "free"),
-}
 
 
 def load(key, models_dir):
@@ -107,29 +102,15 @@ def per_config(jobs, models_dir, repeat=5, deadline=float("inf"), sink=None):
 
 def rollout_batched(batches, models_dir, steps=100, repeat=5, deadline=float("inf"), sink=None):
     """Rows: vmap over B control sequences of the Solo12 rollout-loss gradient."""
-    import cstorm as cs
     from cstorm.dynamics.derivatives_fast import hybrid_dynamics_fast
 
     label, m, nfb = load("solo12", models_dir)
     act = tuple(i >= nfb for i in range(m.nv))
     ia = np.nonzero(act)[0]
-    ip = np.nonzero(~np.array(act))[0]
     rng = np.random.default_rng(0)
     q0 = jnp.asarray(m.neutral())
     v0 = jnp.asarray(rng.normal(size=m.nv) * 0.1)
-    dt = 1e-3
-
-    def loss(U):
-        def step(c, u):
-            q, v = c
-            ta, ap = hybrid_dynamics_fast(m, q, v, u, -0.1 * v[ip], act)
-            a = jnp.zeros(m.nv).at[ia].set(u).at[ip].set(ap)
-            return (cs.integrate(m, q, v, dt), v + dt * a), jnp.sum(ta ** 2)
-
-        (q, v), e = jax.lax.scan(step, (q0, v0), U)
-        return jnp.sum(jnp.sin(q)) + jnp.sum(v ** 2) + 1e-3 * jnp.sum(e)
-
-    g = jax.vmap(jax.grad(loss))
+    g = jax.vmap(jax.grad(rollout_loss(m, act, hybrid_dynamics_fast, q0, v0)))
     rows = []
     for b in batches:
         if time.perf_counter() > deadline:

@@ -296,14 +296,13 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     queue = [dict(index=i, params=plan[i][0], level=plan[i][1],
                   extra=dict(schedule[i]) if schedule is not None else {}, depth=0)
              for i in range(start_stage, len(plan))]
-    prev_params = ({**problem.params, **{k: np.asarray(v, float) for k, v in plan[start_stage - 1][0].items()}}
-                   if start_stage > 0 else None)
+    prev_params = _stage_params(problem, plan[start_stage - 1][0]) if start_stage > 0 else None
     k = 0
     while k < len(queue):
         st = queue[k]
         si, sparams, level = st["index"], st["params"], st["level"]
         nev_done += ev.nev if ev is not None else 0
-        params_now = {**problem.params, **{kk: np.asarray(v, float) for kk, v in sparams.items()}}
+        params_now = _stage_params(problem, sparams)
         data = problem.data(params=sparams, q0=q0, v0=v0)
         me, mi = problem.constraint_masks(level)
         ev = _Evaluator(problem, data, me, mi)
@@ -415,6 +414,11 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                    n_evaluations=nev_done + (ev.nev if ev else 0), info=info)
     sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
     return sol
+
+
+def _stage_params(problem, sparams):
+    """A stage's parameters: the problem's, with the stage's entries (as float arrays)."""
+    return {**problem.params, **{k: np.asarray(v, float) for k, v in sparams.items()}}
 
 
 def _midpoint(a, b):

@@ -341,3 +341,39 @@ def test_torque_limits_dense_bound_every_step():
     e[1] = 1e-6
     fd = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / 2e-6
     np.testing.assert_allclose(J[:, 1], fd, rtol=1e-5, atol=1e-8)
+
+
+def test_evaluate_records_the_constraint_grid_only(monkeypatch):
+    """`MotionProblem.evaluate` records the trajectory on the constraint grid only when no
+    constraint reads every step (with ``derivatives="parallel"`` only those points'
+    Jacobians are evaluated): values and Jacobians equal those of the full recording; a
+    dense torque limit keeps the full recording; a term that reads ``samples["steps"]``
+    without declaring ``uses_steps`` gets an error that says so."""
+    import jax.numpy as jnp
+    m = acrobot_model()
+
+    class Steps(constraints.Constraint):
+        kind = "ineq"
+
+        def values(self, ctx, end, samples):
+            return 3.0 - jnp.abs(samples["steps"]["tau"][:, 1])
+
+    def make(terms):
+        return MotionProblem(m, ["elbow"], 0.6, 6, 0.01, np.array([0.3, 0.2]), constraints=terms, n_path_samples=5,
+                             derivatives="parallel")
+
+    p = make([constraints.TorqueLimits(limits=2.0, normalized=True), constraints.TerminalState("shoulder", v=0.0)])
+    assert p._record_rows() == tuple(int(i) for i in p.sample_idx)
+    assert make([constraints.TorqueLimits(limits=2.0, dense=True)])._record_rows() is None
+    x = jnp.asarray(p.x0) + jnp.linspace(-0.4, 0.5, p.n_vars)
+    grid = p._fun_jac(x, p.data())
+    monkeypatch.setattr(MotionProblem, "_record_rows", lambda self: None)
+    full = p._fun_jac(x, p.data())
+    monkeypatch.undo()
+    for a, b in zip(grid, full):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)
+    with pytest.raises(ProblemError, match="uses_steps"):
+        make([Steps()]).evaluate(x, p.data())
+    Steps.uses_steps = True
+    r = make([Steps()]).evaluate(x, p.data())
+    assert r["c_in"].shape == (p.n_steps + 1,)

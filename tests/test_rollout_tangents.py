@@ -145,3 +145,43 @@ def test_parallel_tangents_equal_autodiff_rk4(hinged, monkeypatch):
 def test_parallel_tangents_equal_autodiff_euler(hinged):
     """The same for semi-implicit Euler (slow: ~2 minutes of compilation)."""
     _all_cases(hinged, "euler")
+
+
+def test_record_rows_hold_those_points_with_exact_tangents(hinged):
+    """``rollout(record_rows=...)`` records those grid points only (sorted, no repeats).
+    Its values equal the full recording's rows with the plain rule and the parallel one,
+    and the parallel rule's forward-mode Jacobian (which then evaluates the grid-point
+    Jacobians at those rows only) equals autodiff's through the full recording, to 1e-9,
+    w.r.t. a path scale and the contact stiffness, with the body landing."""
+    s = hinged
+    rows = (24, 0, 5, 11, 5, 23)
+    keep = np.array(sorted(set(rows)))
+
+    def out(th, derivatives, rows):
+        P = dataclasses.replace(s["P"], stiffness=th[1])
+        paths = {k: v * th[0] for k, v in s["paths"].items()}
+
+        def cfn(q, v):
+            o = contact_forces(s["m"], s["env"], P, q, v, jacobians="autodiff" if derivatives == "autodiff" else "analytic")
+            return o.f_ext, o
+
+        cost = lambda t, q, v, a, tau, c, p: 0.5 * jnp.sum(tau ** 2)
+        r = rollout(s["m"], s["lay"], s["q0"], s["v0"], paths, 1.0 / N, N, contact_fn=cfn, cost_fn=cost,
+                    derivatives=derivatives, record_rows=rows)
+        tr = r["traj"]
+        rec = [tr["q"], tr["v"], tr["a"], tr["tau"], tr["contact"].d, tr["contact"].normal_force, tr["contact"].f_ext]
+        if rows is None:
+            rec = [y[keep] for y in rec]
+        return jnp.concatenate([r["qT"], r["vT"], r["J"][None]] + [y.reshape(-1) for y in rec])
+
+    th = jnp.asarray([1.0, 3000.0])
+    ref = jax.jit(lambda t: out(t, "autodiff", None))(th)
+    ref_J = jax.jit(jax.jacfwd(lambda t: out(t, "autodiff", None)))(th)
+    for mode in ("analytic", "parallel"):
+        np.testing.assert_allclose(jax.jit(lambda t: out(t, mode, rows))(th), ref, rtol=1e-13, atol=1e-13)
+    assert np.abs(np.asarray(ref_J)[:, 1]).max() > 0  # there was contact
+    J = jax.jit(jax.jacfwd(lambda t: out(t, "parallel", rows)))(th)
+    scale = np.maximum(np.abs(np.asarray(ref_J)), 1e-3 * np.abs(np.asarray(ref_J)).max(axis=0))
+    assert (np.abs(np.asarray(J) - np.asarray(ref_J)) / np.maximum(scale, 1e-12)).max() < 1e-9
+    with pytest.raises(cs.InputError, match="record_rows"):
+        out(th, "analytic", (0, N + 1))

@@ -1,5 +1,5 @@
 """Time-parallel tangents of a rollout: the step Jacobians of all steps at once, then a
-linear recurrence (the rollout's ``derivatives="parallel"``, its default).
+linear recurrence (the rollout's ``derivatives="parallel"``, opt-in).
 
 A rollout is a recurrence ``z_{k+1} = F(z_k, u_k; theta)`` over the passive state
 ``z = (q_p, v_p)`` (ambient coordinates; ``n_z = n_qp + n_vp``) with per-step inputs
@@ -21,6 +21,8 @@ after the other. Here instead:
    of a long chain of small kernels, with the analytic hybrid-dynamics Jacobians inside
    (`derivatives_fast`) and the contact forces' Jacobian taken once per stage w.r.t.
    ``(q, v)`` and composed with the dynamics' (`contact_hybrid`);
+   With ``rows`` (`cstorm.simulate.rollout`'s ``record_rows``: the constraint grid) the
+   grid-point Jacobians are evaluated at those points only, and ``o`` holds only them;
 3. the tangent map is then linear algebra: ``w_k = D_k^{zu} du_k (+ r_k)``, the
    recurrence ``dz_{k+1} = D_k^{zz} dz_k + w_k`` (a scan of ``n_z x n_z`` matrix-vector
    products), ``dJ = sum_k D_k^{J} [dz_k; du_k]`` and ``do_k = E_k [dz_k; du_k^0]``,
@@ -39,11 +41,17 @@ step are kept, ``N ((n_z + 1)(n_z + n_u) + n_o (n_z + 3 n_active))`` numbers (th
 tumbler's 1000 steps: a few MB); the batched evaluation bounds the temporaries to
 `BATCH` steps.
 
-Cost (measured, 2 cores): a gradient is 2-3 forward rollouts. Compiling it can take
-longer than compiling the plain scan's derivative (three traced copies of the step: the
-primal scan, the step Jacobian, the grid-point Jacobian): the hopper benchmark's gradient
-with contact 48 s against 56-61 s, but the tumbler's start-segment problem 53 s against
-22 s, which is why it is opt-in.
+Under ``jax.jvp(..., has_aux=True)`` vmapped over tangents, the primal outputs are the
+scan's own (unbatched), so a caller needing values and a forward Jacobian gets both from
+one pass (`cstorm.MotionProblem`'s ``derivatives="parallel"`` does).
+
+Cost (measured, 2 cores): a gradient is 2-3 forward rollouts; the tumbler handstand's
+values+Jacobian (1000 steps, 40 grid points, 26 parameters) ~70 ms primal, ~100 ms step
+Jacobians, ~2 ms recurrence. Compiling it can take longer than compiling the plain
+scan's derivative (three traced copies of the step: the primal scan, the step Jacobian,
+the grid-point Jacobian): the hopper benchmark's gradient with contact 48 s against
+56-61 s, but the tumbler's segment problems ~33 s against ~18 s, which is why it is
+opt-in.
 """
 
 from __future__ import annotations
@@ -61,7 +69,7 @@ from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero
 BATCH = 1024
 
 
-def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run):
+def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run, rows=None):
     """The rollout's scan over steps with the time-parallel tangent rule.
 
     Args:
@@ -76,9 +84,13 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run)
       xs: dict of step inputs, leaves ``(n_seg, seg, ...)``; ``"k"`` the int step index.
       n_run, q_bound, v_bound: as `simulate.rollout` (not differentiated).
       run: `simulate._run_steps`.
+      rows: None, or a sorted tuple of step indices (into the flattened ``n_seg * seg``
+        steps): the recorded data is returned (and differentiated: the grid-point
+        Jacobians ``E_k``) at these steps only.
     Returns:
       ``((zq_N (n_qp,), zv_N (n_vp,), J, bad, bad_step, bad_dof, bad_reason), outs, keeps)``
-      with ``outs`` / ``keeps`` stacked ``(n_seg, seg, ...)``.
+      with ``keeps`` stacked ``(n_seg, seg)`` and ``outs`` likewise ``(n_seg, seg, ...)``,
+      or ``(len(rows), ...)`` with ``rows``.
     """
     x_ex = jax.tree_util.tree_map(lambda a: a[0, 0], xs)
     core_c, consts = jax.closure_convert(core, q0, v0, x_ex)
@@ -87,11 +99,13 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run)
     point_c, pconsts = jax.closure_convert(point, q0, v0, x_ex0)
     xf = {k: x for k, x in xs.items() if jnp.issubdtype(x.dtype, jnp.inexact)}
     xi = {k: x for k, x in xs.items() if k not in xf}
-    return _steps((core_c, point_c), layout, run, (tuple(consts), tuple(pconsts)), q0, v0, xf, xi,
+    rows = None if rows is None else tuple(int(i) for i in rows)
+    return _steps((core_c, point_c), layout, run, rows, (tuple(consts), tuple(pconsts)), q0, v0, xf, xi,
                   jnp.asarray(n_run), jnp.asarray(q_bound), jnp.asarray(v_bound))
 
 
-def _primal(fns, layout, run, consts, q0, v0, xf, xi, n_run, q_bound, v_bound):
+def _primal_full(fns, layout, run, consts, q0, v0, xf, xi, n_run, q_bound, v_bound):
+    """The primal scan; the recorded data on every step ``(n_seg, seg, ...)``."""
     from .simulate import _carry0
 
     iqp, ivp = np.array(layout.qp_idx, int), np.array(layout.vp_idx, int)
@@ -101,7 +115,20 @@ def _primal(fns, layout, run, consts, q0, v0, xf, xi, n_run, q_bound, v_bound):
     return (qN[iqp], vN[ivp], J, bad, bstep, bdof, breason), outs, keeps
 
 
-_steps = jax.custom_jvp(_primal, nondiff_argnums=(0, 1, 2))
+def _at_rows(outs, rows):
+    """The recorded data at the flattened steps ``rows`` (None: all, unchanged)."""
+    if rows is None:
+        return outs
+    idx = np.asarray(rows, int)
+    return jax.tree_util.tree_map(lambda y: y.reshape((-1,) + y.shape[2:])[idx], outs)
+
+
+def _primal(fns, layout, run, rows, consts, q0, v0, xf, xi, n_run, q_bound, v_bound):
+    carry, outs, keeps = _primal_full(fns, layout, run, consts, q0, v0, xf, xi, n_run, q_bound, v_bound)
+    return carry, _at_rows(outs, rows), keeps
+
+
+_steps = jax.custom_jvp(_primal, nondiff_argnums=(0, 1, 2, 3))
 
 
 def _batched(f, args, K):
@@ -127,11 +154,11 @@ def _is_float(x):
     return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
 
 
-def _steps_jvp(fns, layout, run, primals, tangents):
+def _steps_jvp(fns, layout, run, rows, primals, tangents):
     consts, q0, v0, xf, xi, n_run, q_bound, v_bound = primals
     dconsts, dq0, dv0, dxf = tangents[:4]
     core_c, point_c = fns
-    (zq, zv, J, bad, bstep, bdof, breason), outs, keeps = _primal(fns, layout, run, *primals)
+    (zq, zv, J, bad, bstep, bdof, breason), outs, keeps = _primal_full(fns, layout, run, *primals)
     iqp, ivp = np.array(layout.qp_idx, int), np.array(layout.vp_idx, int)
     nqp, nvp = len(iqp), len(ivp)
     nz = nqp + nvp
@@ -187,11 +214,21 @@ def _steps_jvp(fns, layout, run, primals, tangents):
     W = jnp.concatenate([Z, U], axis=1)
     W0 = jnp.concatenate([Z, U[:, cols0]], axis=1)
 
-    def jac(args):
-        w, w0, q, v, xik = args
-        return jax.jacfwd(G)(w, consts, q, v, xik), jax.jacfwd(P)(w0, consts, q, v, xik)
+    # the grid points whose recorded data is returned: all K steps, or `rows`
+    ir = np.arange(K) if rows is None else np.asarray(rows, int)
+    at = lambda y: y if rows is None else y[ir]
+    R_ = len(ir)
 
-    D, E = _batched(jac, (W, W0, Q, V, XI), K)  # (K, nz + 1, nw), (K, n_out, nz + 3 na)
+    def jac_step(args):
+        w, q, v, xik = args
+        return jax.jacfwd(G)(w, consts, q, v, xik)
+
+    def jac_point(args):
+        w0, q, v, xik = args
+        return jax.jacfwd(P)(w0, consts, q, v, xik)
+
+    D = _batched(jac_step, (W, Q, V, XI), K)  # (K, nz + 1, nw)
+    E = _batched(jac_point, (at(W0), at(Q), at(V), jax.tree_util.tree_map(at, XI)), R_)  # (R, n_out, nz + 3 na)
     # frozen steps: the state is carried over, no input or cost sensitivity
     eye = jnp.eye(nz, nw, dtype=D.dtype)
     D = jnp.concatenate([jnp.where(keep[:, None, None], eye, D[:, :nz]),
@@ -207,12 +244,10 @@ def _steps_jvp(fns, layout, run, primals, tangents):
     if _any_nonzero(dconsts):
         dc = jax.tree_util.tree_map(_instantiate, dconsts, is_leaf=_is_zero)
 
-        def r_of(w, w0, q, v, xik):
-            return (jax.jvp(lambda c: G(w, c, q, v, xik), (consts,), (dc,))[1],
-                    jax.jvp(lambda c: P(w0, c, q, v, xik), (consts,), (dc,))[1])
-
-        R, RP = jax.vmap(r_of)(W, W0, Q, V, XI)
+        R = jax.vmap(lambda w, q, v, xik: jax.jvp(lambda c: G(w, c, q, v, xik), (consts,), (dc,))[1])(W, Q, V, XI)
         R = jnp.where(keep[:, None], 0.0, R)
+        RP = jax.vmap(lambda w0, q, v, xik: jax.jvp(lambda c: P(w0, c, q, v, xik), (consts,), (dc,))[1])(
+            at(W0), at(Q), at(V), jax.tree_util.tree_map(at, XI))
 
     # the recurrence dz_{k+1} = D_zz dz_k + w_k
     wk = jnp.einsum("kij,kj->ki", D[:, :nz, nz:], dU)
@@ -227,12 +262,14 @@ def _steps_jvp(fns, layout, run, primals, tangents):
     dJ = jnp.sum(jnp.einsum("kj,kj->k", D[:, nz], jnp.concatenate([dZ, dU], axis=1)))
     if R is not None:
         dJ = dJ + jnp.sum(R[:, nz])
-    dP = jnp.einsum("kij,kj->ki", E, jnp.concatenate([dZ, dU[:, cols0]], axis=1))
+    dP = jnp.einsum("kij,kj->ki", E, jnp.concatenate([at(dZ), at(dU[:, cols0])], axis=1))
     if RP is not None:
         dP = dP + RP
+    lead = (n_seg, seg) if rows is None else (R_,)
     douts = [None] * len(out_leaves)
     for j, i in enumerate(fl):
-        douts[i] = dP[:, ooff[j]: ooff[j + 1]].reshape((n_seg, seg) + tuple(np.shape(out_leaves[i])))
+        douts[i] = dP[:, ooff[j]: ooff[j + 1]].reshape(lead + tuple(np.shape(out_leaves[i])))
+    outs = _at_rows(outs, rows)
     outs_leaves = jax.tree_util.tree_leaves(outs)
     for i, y in enumerate(outs_leaves):
         if douts[i] is None:

@@ -394,7 +394,7 @@ def _run_steps(core, carry0, xs, n_run, q_bound, v_bound, layout, emit=True):
 def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int, *, integrator: str = "rk4",
             contact_fn: Callable | None = None, cost_fn: Callable | None = None, params: Any = None,
             segment: int | None = None, q_bound: float = 1e4, v_bound: float = 1e4, record: bool = True,
-            n_valid=None, derivatives: str = "analytic", t0=0.0):
+            n_valid=None, derivatives: str = "analytic", t0=0.0, record_rows=None):
     """Integrate the passive state with prescribed active paths (pure JAX; jit/grad/vmap).
 
     Args:
@@ -418,6 +418,11 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
       q_bound, v_bound: divergence bounds on the passive positions and velocities (may be
         traced).
       record: if False, the trajectory arrays are not returned (``traj`` is None).
+      record_rows: None (every grid point), or grid indices in ``[0, N]`` (static): the
+        trajectory arrays hold these points only, sorted and without repeats,
+        ``(R, ...)`` (with ``derivatives="parallel"`` only their grid-point Jacobians are
+        evaluated, which is most of the saving: a constraint grid of ~40 points instead
+        of every step).
       derivatives: ``"analytic"`` (default: the hybrid dynamics' JAX derivative is the
         analytic recursive one, model-parameter tangents by autodiff), ``"parallel"``
         (that, plus the time-parallel tangent rule of `cstorm.rollout_tangents`: step
@@ -453,6 +458,11 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
     ivp = np.array(layout.vp_idx, int)
     iqp = np.array(layout.qp_idx, int)
     nvp = len(ivp)
+    rows = None
+    if record and record_rows is not None:
+        rows = np.unique(np.asarray(record_rows, dtype=int).reshape(-1))
+        if rows.size == 0 or rows[0] < 0 or rows[-1] > N:
+            raise InputError(f"record_rows must be grid indices in [0, {N}], got {record_rows!r}")
 
     def padded(x):
         if pad:
@@ -474,7 +484,7 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
 
         point = _point_fn(model, layout, h, t0, contact_fn, cost_fn, params, derivatives, record)
         (zq, zv, J, bad, bstep, bdof, breason), ys, _ = scan_steps(core, point, layout, q_init, v0, xs, n_run,
-                                                                 q_bound, v_bound, run=_run_steps)
+                                                                 q_bound, v_bound, run=_run_steps, rows=rows)
         qN = q_init.at[iqp].set(zq) if len(iqp) else q_init
         vN = v0.at[ivp].set(zv) if nvp else v0
     else:
@@ -483,11 +493,17 @@ def rollout(model, layout: RolloutLayout, q0, v0, paths, dt: float, n_steps: int
                                                                      layout, emit=record)
     out = dict(J=jnp.where(bad, jnp.inf, J), diverged=bad, div_step=bstep, div_dof=bdof, div_reason=breason)
     if record:
-        flat = lambda y: y.reshape((n_seg * seg,) + y.shape[2:])[:NT]
+        if rows is None:
+            flat = lambda y: y.reshape((n_seg * seg,) + y.shape[2:])[:NT]
+        elif derivatives == "parallel":  # the rule returned these rows only
+            flat = lambda y: y
+        else:
+            flat = lambda y: y.reshape((n_seg * seg,) + y.shape[2:])[rows]
         qs, vs, as_, taus, cs_ = ys
         traj = dict(q=flat(qs), v=flat(vs), a=flat(as_), tau=flat(taus))
         traj["contact"] = None if cs_ is None else jax.tree_util.tree_map(flat, cs_)
         out["traj"] = traj
+    if record and rows is None:
         out["qT"], out["vT"] = traj["q"][n_run], traj["v"][n_run]
     else:
         ia, iva = np.array(layout.qa_idx, int), np.array(layout.va_idx, int)

@@ -41,6 +41,9 @@ class Constraint:
     kind = "eq"
     stage = 0
     name = None
+    #: whether ``values`` reads ``samples["steps"]`` (every integration step): when no term
+    #: does, the rollout records the constraint grid only (cheaper derivatives)
+    uses_steps = False
 
     def check(self, problem):
         pass
@@ -175,6 +178,10 @@ class TorqueLimits(Constraint):
                 raise ProblemError("TorqueLimits: the model's effort_limit is infinite for some of these joints; "
                                    "pass limits=")
         self._windows = window_index(problem.sample_idx, problem.n_steps) if self.dense else None
+
+    @property
+    def uses_steps(self):
+        return self.dense
 
     def ratios(self, samples, lim):
         """``(hi, lo)``, each ``(S, k)``: per sample the largest ``tau/lim`` and ``-tau/lim``

@@ -103,6 +103,16 @@ def _as_active_vector(value, names_given, layout, what):
     return np.array([arr[names_given.index(n)] for n in layout.active_names])
 
 
+class _NoSteps(dict):
+    """``samples["steps"]`` where the rollout recorded the constraint grid only: reading
+    it is an error that says what to declare."""
+
+    def __missing__(self, key):
+        raise ProblemError(f"a constraint read samples['steps'][{key!r}] (every integration step), which is "
+                           "recorded only when some constraint declares it: set `uses_steps = True` on the "
+                           "constraint class (see cstorm.optimize.constraints.Constraint)")
+
+
 class MotionProblem:
     """One motion segment.
 
@@ -137,11 +147,13 @@ class MotionProblem:
       derivatives: how the rollout is differentiated (`cstorm.simulate.rollout`):
         ``"analytic"`` (default: JAX differentiates the scan, with the analytic
         hybrid-dynamics Jacobians inside), ``"parallel"`` (the step Jacobians of all
-        steps at once, then a linear recurrence, `cstorm.rollout_tangents`: the
-        tumbler's start segment solved in 80 s against 63 s, its iterations 27 s against
-        41 s but its compile 53 s against 22 s, so it pays off only over long solves) or
-        ``"autodiff"`` (through everything; the reference).
-        Same values; derivatives equal to rounding.
+        steps at once, then a linear recurrence, `cstorm.rollout_tangents`; with
+        ``"fwd"`` the values come from the same pass, and with `record_grid_only` only
+        the constraint grid's points are differentiated: one values+Jacobian evaluation
+        of the tumbler's segments 2-4x faster (start 145 against 289 ms, roll 72
+        against 231 ms), its compile ~33 against ~18 s, so it pays off over solves of
+        more than ~100 evaluations) or ``"autodiff"`` (through everything; the
+        reference). Same values; derivatives equal to rounding.
       contact_jacobians: how the contact forces of ``env``/``contact`` are differentiated
         (`cstorm.contact.contact_forces`'s ``jacobians``): ``"analytic"`` (default; the
         ground contact points' derivative rule) or ``"autodiff"``. Same values;
@@ -258,6 +270,12 @@ class MotionProblem:
         if derivatives not in DERIVATIVES:
             raise ProblemError(f"MotionProblem: derivatives must be one of {DERIVATIVES}, got {derivatives!r}")
         self.derivatives = derivatives
+        #: `evaluate` records the trajectory on the constraint grid only where it can (see
+        #: `_record_rows`; with ``derivatives="parallel"`` the grid-point Jacobians of ~40
+        #: points instead of every step: the tumbler's start segment 204 -> 145 ms per
+        #: values+Jacobian). False: every step, as before; values and Jacobians equal to
+        #: rounding (the batched Jacobians' rounding depends on the batch)
+        self.record_grid_only = True
         self.segment = segment
         self.q_bound, self.v_bound = float(q_bound), float(v_bound)
         if contact_jacobians not in ("analytic", "autodiff"):
@@ -397,7 +415,7 @@ class MotionProblem:
             bc["v1"] = data["va_final"]
         return self.spline.expand(free, **bc)
 
-    def _rollout(self, x, data, record=True):
+    def _rollout(self, x, data, record=True, rows=None):
         model = data["model"]
         ctrl = self.ctrl(x, data)
         B = data["basis"]
@@ -423,6 +441,7 @@ class MotionProblem:
                   params=data["params"], segment=self.segment, q_bound=self.q_bound, v_bound=self.v_bound,
                   record=record, derivatives=self.derivatives)
         if self.shooting == 1:
+            kw["record_rows"] = rows
             return rollout(model, self.layout, q0, v0, paths, self.dt, self.n_steps, **kw), ctx
         return self._multiple_shooting(x, data, q0, v0, paths, kw), ctx
 
@@ -509,7 +528,8 @@ class MotionProblem:
     def evaluate(self, x, data):
         """Pure JAX: dict ``f`` (scalar objective), ``c_eq`` (n_eq,), ``c_in`` (n_ineq,),
         ``diverged`` (bool) at decision vector ``x`` (n_vars,)."""
-        res, ctx = self._rollout(x, data, record=True)
+        rows = self._record_rows()
+        res, ctx = self._rollout(x, data, record=True, rows=rows)
         tr = res["traj"]
         end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
         f = res["J"]
@@ -518,7 +538,7 @@ class MotionProblem:
                 val = c.terminal(ctx, end)
                 if val is not None:
                     f = f + val
-        samples = self._samples(tr)
+        samples = self._samples(tr, recorded=rows is not None)
         eq, inq = [], []
         for c in self.constraints:
             val = jnp.atleast_1d(c.values(ctx, end, samples)).ravel()
@@ -559,11 +579,29 @@ class MotionProblem:
         end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
         return [jnp.atleast_1d(c.values(ctx, end, self._samples(tr))).ravel() for c in self.constraints]
 
-    def _samples(self, tr):
+    def _record_rows(self):
+        """The grid points whose recorded data `evaluate` reads: the constraint grid
+        (`sample_idx`, both ends included), or None (every step) when a constraint reads
+        ``samples["steps"]`` (its ``uses_steps``) or with multiple shooting. With
+        ``derivatives="parallel"`` only these points' Jacobians are evaluated."""
+        if (self.shooting > 1 or not self.record_grid_only
+                or any(getattr(c, "uses_steps", True) for c in self.constraints)):
+            return None
+        return tuple(int(i) for i in self.sample_idx)
+
+    def _samples(self, tr, recorded=False):
         """The trajectory on the constraint grid: dict ``t (S,)``, ``q, v, a, tau`` and,
         with contact, ``contact`` (the per-point contact data at the samples); ``steps``:
         the same fields (no contact) on every integration step, ``(N+1, ...)``, for terms
-        that aggregate over all steps (``TorqueLimits(dense=True)``)."""
+        that aggregate over all steps (``TorqueLimits(dense=True)``; a term that reads
+        them declares ``uses_steps = True``). ``recorded``: ``tr`` holds the constraint
+        grid's points only (`_record_rows`), and ``steps`` is not available."""
+        if recorded:
+            samples = dict(t=jnp.asarray(self.t[self.sample_idx]), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"],
+                           steps=_NoSteps())
+            if tr.get("contact") is not None:
+                samples["contact"] = tr["contact"]
+            return samples
         idx = self.sample_idx
         samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
                        tau=tr["tau"][idx], steps=dict(t=jnp.asarray(self.t), q=tr["q"], v=tr["v"], a=tr["a"],
@@ -620,9 +658,22 @@ class MotionProblem:
             # them (one vmapped jvp with has_aux, ~10 % faster) moves the Jacobians by
             # ~1e-15, and luxo's solve plan then fails (session 12): re-check its solve
             # test before changing this
-            val, div = y(x)
-            jvp = lambda t: jax.jvp(lambda xx: y(xx)[0], (x,), (t,))[1]
-            Jt = jax.vmap(jvp)(jnp.eye(n, dtype=x.dtype))  # (n, m)
+            eye = jnp.eye(n, dtype=x.dtype)
+            if self.derivatives == "parallel":
+                # the time-parallel rule evaluates the primal rollout once inside the JVP and
+                # its tangents from that (`cstorm.rollout_tangents`): take the values from
+                # there instead of a second rollout (the same code: the values and the
+                # Jacobians are bitwise those of the separate primal; the tumbler handstand's
+                # evaluation 402 -> 330 ms)
+                def jvp(t):
+                    v_, t_, d_ = jax.jvp(y, (x,), (t,), has_aux=True)
+                    return v_, d_, t_
+
+                val, div, Jt = jax.vmap(jvp, out_axes=(None, None, 0))(eye)  # Jt (n, m)
+            else:
+                val, div = y(x)
+                jvp = lambda t: jax.jvp(lambda xx: y(xx)[0], (x,), (t,))[1]
+                Jt = jax.vmap(jvp)(eye)  # (n, m)
             J = Jt.T
         else:
             val, vjp, div = jax.vjp(y, x, has_aux=True)

@@ -484,13 +484,13 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
 
     model = robots.tumbler(feet=True) if model is None else model
     env, contact = _env_contact()
-    # contact derivatives by plain autodiff: the plans below were verified with them. The
-    # analytic rule (the default) gives the same Jacobians to 1e-14, yet SLSQP's path
-    # through the handstand's plan splits at its fourth stage and then stalls (session
-    # 17: the 1.2x-torque stage at violation 1.55; refined, the final stage still crept
-    # past 500 iterations at violation 3e-5)
+    # the handstand's contact derivatives by plain autodiff: its plan was verified with
+    # them. The analytic rule (the default, and the other segments') gives the same
+    # Jacobians to 1e-14, yet SLSQP's path through the handstand's plan splits at its
+    # fourth stage and then stalls (session 17: the 1.2x-torque stage at violation 1.55;
+    # refined, the final stage still crept past 500 iterations at violation 3e-5)
     common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=n_path_samples,
-                  shooting=shooting, contact_jacobians="autodiff")
+                  shooting=shooting, contact_jacobians="autodiff" if name == "handstand" else "analytic")
     if roll_end not in ("free", "nominal"):
         raise ValueError(f"tumbler_segment: roll_end must be 'free' or 'nominal', got {roll_end!r}")
     if guess not in ("default", "bridge") or (guess == "bridge" and (name != "handstand" or shooting < 2)):
@@ -517,12 +517,12 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
                                             pitch_trust=HANDSTAND_PITCH_TRUST)
         # the ramp's stages only warm-start the next one: a loose tolerance is enough
         p.solve_options.update(intermediate_tol=1e-4, intermediate_max_iter=60, first_step=HANDSTAND_FIRST_STEP)
-        # the time-parallel tangent rule: one values+Jacobian evaluation 405 vs 643 ms, its
-        # compile 37 vs 20 s; the chained demo's handstand 237 iterations in 186 s against
-        # 203 in 306 s (session 17), and the chain still solves (24/24); single shooting
-        # only (the multiple-shooting guess="bridge" was not measured with it)
-        if shooting == 1:
-            p.derivatives = "parallel"
+        # every step's grid-point Jacobians, as when its plan was verified: with the
+        # constraint grid's only (`MotionProblem.record_grid_only`, 240 instead of 330 ms
+        # per evaluation) the Jacobians move by ~1e-14, and SLSQP's path stalls at the
+        # 1.1x-torque stage (violation 10 after 100 iterations; session 19, and with the
+        # analytic contact rule as well, session 18)
+        p.record_grid_only = False
         if guess == "bridge":
             T_ = p.t_final
             p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
@@ -572,6 +572,13 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     # to rounding (a 1e-14 change of the gradients has sent the handstand's rest ramp
     # into a stall at violation 1.55)
     p.solve_options["refine"] = 2
+    # the time-parallel tangent rule (`cstorm.rollout_tangents`): one values+Jacobian
+    # evaluation of the handstand 330 ms against 643 ms by differentiating the scan, of
+    # the roll 72 against 231 ms, of standing and start ~145 against 289 ms (session 18,
+    # 2 cores); single shooting only (the multiple-shooting guess="bridge" was not
+    # measured with it)
+    if shooting == 1:
+        p.derivatives = "parallel"
     if dense_torque:  # after the plan, the limits on every step, tightened along DENSE_RAMPS
         # (no schedule: `cs.solve`'s default, one stage per level, before the dense level)
         plan = p.solve_options.get("schedule") or [dict(params={}, level=k) for k in range(p.n_levels - 1)]

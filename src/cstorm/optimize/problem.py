@@ -582,9 +582,10 @@ class MotionProblem:
     def _record_rows(self):
         """The grid points whose recorded data `evaluate` reads: the constraint grid
         (`sample_idx`, both ends included), or None (every step) when a constraint reads
-        ``samples["steps"]`` (its ``uses_steps``) or with multiple shooting. With
-        ``derivatives="parallel"`` only these points' Jacobians are evaluated."""
-        if (self.shooting > 1 or not self.record_grid_only
+        ``samples["steps"]`` (its ``uses_steps``), with multiple shooting, or unless
+        ``derivatives="parallel"`` (only then are just these points' Jacobians evaluated;
+        the other modes differentiate every step anyway and keep their verified paths)."""
+        if (self.shooting > 1 or not self.record_grid_only or self.derivatives != "parallel"
                 or any(getattr(c, "uses_steps", True) for c in self.constraints)):
             return None
         return tuple(int(i) for i in self.sample_idx)

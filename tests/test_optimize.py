@@ -380,37 +380,3 @@ def test_evaluate_records_the_constraint_grid_only(monkeypatch):
     Steps.uses_steps = True
     r = make([Steps()]).evaluate(x, p.data())
     assert r["c_in"].shape == (p.n_steps + 1,)
-
-
-def test_line_search_points_cost_no_jacobian(monkeypatch):
-    """With ``derivatives="parallel"`` the solver's trial points get values only (the
-    values-only compiled function, bitwise equal to the values+Jacobians one), and the
-    solve's path is exactly the one evaluating values+Jacobians everywhere: same
-    iterates, same history, fewer Jacobians."""
-    import importlib
-
-    solve_mod = importlib.import_module("cstorm.optimize.solve")
-
-    p = examples.get("acrobot")(**FAST)
-    p.derivatives = "parallel"
-    d = p.data()
-    fj, fv = p.compiled("fun_jac"), p.compiled("fun")
-    rng = np.random.default_rng(3)
-    for _ in range(3):
-        x = np.asarray(p.x0) + 0.3 * rng.standard_normal(p.n_vars)
-        a, b = fj(x, d), fv(x, d)
-        for i in range(4):
-            assert np.array_equal(np.asarray(a[i]), np.asarray(b[i]))
-    calls = []
-    p._compiled["fun_jac"] = lambda x, data: (calls.append(1), fj(x, data))[1]  # counts Jacobians
-    sched = [dict(params={"target": np.pi / 2}, level=0)]
-    lazy = solve(p, schedule=sched, max_iter=40)
-    n_lazy = len(calls)
-    monkeypatch.setattr(solve_mod._Evaluator, "values", lambda self, x: self.at(x)[:4])
-    eager = solve(p, schedule=sched, max_iter=40)
-    n_eager = len(calls) - n_lazy
-    assert lazy.iterations == eager.iterations > 5
-    assert np.array_equal(lazy.x, eager.x)
-    assert [h["cost"] for h in lazy.history] == [h["cost"] for h in eager.history]
-    assert [h["violation"] for h in lazy.history] == [h["violation"] for h in eager.history]
-    assert n_lazy < n_eager  # the trial points it rejected cost values only

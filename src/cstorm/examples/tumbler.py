@@ -73,7 +73,14 @@ the arms without it tips the robot onto its face.
 Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
 ------------------------------------------------------------------------
 - The whole sequence (`tumbler`, ``cstorm solve tumbler``, ``cstorm demo``): **solved
-  chained** (session 17), every segment from the previous one's end: 24/24 criteria, 567
+  chained** (session 19, every single-shooting segment with ``derivatives="parallel"``,
+  roll/standing/start with analytic contact derivatives and the constraint grid's
+  Jacobians only): 24/24 criteria, 564 SLSQP iterations (237 / 173 / 77 / 77), costs
+  10.741 + 4.203 + 16.987 + 0.155 = 32.085; 250 s with a warm compile cache (session
+  18), 334 s from a cold one (84 s compiling the handstand; 275 / 29 / 15 / 15 s);
+  fidelity 0.28 mm / 0.007 deg. The handstand keeps plain autodiff contact derivatives
+  and every step's Jacobians: with either change (Jacobians moved by ~1e-14) its plan
+  stalled at the 1.1x-torque stage (violation 10 and 800). Session 17: 567
   SLSQP iterations (237 / 136 / 116 / 78), 305 s including 30 s of compile (load ~1,
   partly cached; the later segments compile while the handstand solves; the handstand
   uses ``derivatives="parallel"``), 342 s for the whole ``cstorm demo``; costs 10.741 +

@@ -21,7 +21,7 @@ def run_ipopt(ca, ev, x0, tracker, stage, params, max_iter, tol, options):
     m = ne + ni
 
     def cons(x):
-        _, ce, ci, *_ = ev.values(x)  # no Jacobian at trial points (`_Evaluator.values`)
+        _, ce, ci, *_ = ev.at(x)
         return np.concatenate([ce, ci])
 
     def cons_jac(x):
@@ -114,7 +114,7 @@ def run_ipopt(ca, ev, x0, tracker, stage, params, max_iter, tol, options):
                 return [1]  # non-zero: IPOPT stops ("user requested stop")
             return [0]
 
-    f_cb = _Fun("cstorm_f", 1, lambda x: np.array([ev.fscale * ev.values(x)[0]]),
+    f_cb = _Fun("cstorm_f", 1, lambda x: np.array([ev.fscale * ev.at(x)[0]]),
                 lambda x: (ev.fscale * ev.at(x)[4]).reshape(1, n))
     g_cb = _Fun("cstorm_g", m, cons, cons_jac) if m else None
     it_cb = _Iter()

@@ -111,8 +111,7 @@ class _Precompiler:
     same (the same compiled functions, evaluated at the same points afterwards).
     ``wait(i)`` blocks until segment ``i`` of the list is compiled (or its compile
     failed: the solve then compiles it again and reports any error where it happens).
-    Each segment's ``fun_jac``, ``trajectory`` (and ``fun`` with ``derivatives="parallel"``,
-    see `solve._Evaluator`) are compiled by evaluating them once at
+    Each segment's ``fun_jac`` and ``trajectory`` are compiled by evaluating them once at
     its own initial guess and start state; a problem that appears twice (or is the first
     segment, which the solve compiles itself) is skipped. ``MotionSequence.solve_options["precompile"]
     = False`` turns this off."""
@@ -134,8 +133,6 @@ class _Precompiler:
                 try:
                     x, d = jnp.asarray(np.asarray(seg.x0, float)), seg.data()
                     jax.block_until_ready(seg.compiled("fun_jac")(x, d))
-                    if seg.derivatives == "parallel":  # its line searches evaluate values only
-                        jax.block_until_ready(seg.compiled("fun")(x, d))
                     jax.block_until_ready(seg.compiled("trajectory")(x, d))
                 except Exception:  # noqa: BLE001 - the solve itself reports it
                     pass

@@ -40,8 +40,7 @@ class Solution:
       segments: per-segment `Solution` objects (one entry for a single problem; its own
         ``segments`` is empty).
       problem: the problem's name. params: final problem parameters. wall_time_s,
-        compile_time_s: timings. n_evaluations: rollouts evaluated (values-only ones at
-        a solver's trial points included). info: JSON-able extras (solver options, stages,
+        compile_time_s: timings. info: JSON-able extras (solver options, stages,
         problem description, problem hash, cstorm version).
     """
 

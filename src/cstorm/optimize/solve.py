@@ -49,49 +49,8 @@ class _Interrupted(Exception):
     pass
 
 
-def _values_fn(problem):
-    """The problem's compiled values-only function; waits for its background compile
-    (`_warm_values`) if one is running."""
-    th = getattr(problem, "_values_warming", None)
-    if th is not None:
-        th.join()
-        problem._values_warming = None
-    return problem.compiled("fun")
-
-
-def _warm_values(problem, x, data):
-    """Compile the problem's values-only function in a background thread (once per
-    problem), while the solve compiles values+Jacobians: on 2 cores the other one would
-    wait. Errors surface where `_values_fn`'s caller evaluates it."""
-    import threading
-
-    if problem.derivatives != "parallel" or "fun" in problem._compiled or getattr(problem, "_values_warming", None):
-        return
-
-    def run():
-        try:
-            jax.block_until_ready(problem.compiled("fun")(jnp.asarray(x), data))
-        except Exception:  # noqa: BLE001 - reported when the solve evaluates it
-            pass
-
-    th = threading.Thread(target=run, name="cstorm-compile-values", daemon=True)
-    problem._values_warming = th
-    th.start()
-
-
 class _Evaluator:
-    """Caches the compiled values+derivatives of one problem at the last x.
-
-    ``at(x)``: values and Jacobians (the problem's ``fun_jac``). ``values(x)``: values
-    only; with ``derivatives="parallel"`` (``lazy``) these come from the values-only
-    ``fun`` (a rollout, ~4x cheaper than values+Jacobians on the tumbler's handstand),
-    so that a solver's trial points that it then rejects cost no Jacobian (SLSQP asks
-    for values at every line-search point and for Jacobians at accepted ones: the
-    chained tumbler ~1.6 evaluations per iteration). There the two compiled functions
-    give bitwise the same values (the rule's primal is the same rollout; checked by
-    tests), so the solver's path is that of evaluating everything everywhere; in the
-    other modes ``values`` reads ``at`` (their separate compiles may round differently,
-    and their solve plans were verified with ``fun_jac``'s values)."""
+    """Caches the compiled values+derivatives of one problem at the last x."""
 
     def __init__(self, problem: MotionProblem, data, mask_eq, mask_in):
         self.p, self.data = problem, data
@@ -99,59 +58,34 @@ class _Evaluator:
         self.fscale = 1.0  # the solver sees fscale * f (reported costs are unscaled)
         self.bounds = None  # (lb, ub) of the current stage (None: `variable_bounds`)
         self.fn = problem.compiled("fun_jac")
-        self.lazy = problem.derivatives == "parallel"
-        self.x = None  # where `at` evaluated last
-        self.xv = None  # where `values` evaluated last (values only)
-        self.nev = 0  # evaluations, values-only ones included
-        self.nev_jac = 0  # of them, values+Jacobians
+        self.x = None
+        self.nev = 0
         self.f_good = None
 
-    def _sanitized(self, f, ce, ci, div):
-        """Masked values; a diverged or non-finite point gets a large cost and finite
-        constraint values (the solver backs off instead of failing on NaN)."""
-        ce, ci = ce[self.me], ci[self.mi]
-        bad = bool(div) or not (np.isfinite(f) and np.all(np.isfinite(ce)) and np.all(np.isfinite(ci)))
-        if bad:
-            ref = abs(self.f_good) if self.f_good is not None else 1.0
-            f = _BIG * (1.0 + ref)
-            ce = np.where(np.isfinite(ce), ce, _BIG)
-            ci = np.where(np.isfinite(ci), ci, -_BIG)
-        else:
-            self.f_good = float(f)
-        return float(f), ce, ci, bad
-
     def at(self, x):
-        """``(f, c_eq, c_in, bad, grad f, J_eq, J_in)`` at x (masked, unscaled)."""
         x = np.asarray(x, dtype=float)
         if self.x is None or not np.array_equal(x, self.x):
             f, ce, ci, div, g, Je, Ji = (np.asarray(a) for a in self.fn(jnp.asarray(x), self.data))
             self.nev += 1
-            self.nev_jac += 1
             self.x = x.copy()
-            f, ce, ci, bad = self._sanitized(f, ce, ci, div)
+            ce, ci = ce[self.me], ci[self.mi]
             Je, Ji = Je[self.me], Ji[self.mi]
+            bad = bool(div) or not (np.isfinite(f) and np.all(np.isfinite(ce)) and np.all(np.isfinite(ci)))
             if bad:
+                ref = abs(self.f_good) if self.f_good is not None else 1.0
+                f = _BIG * (1.0 + ref)
+                ce = np.where(np.isfinite(ce), ce, _BIG)
+                ci = np.where(np.isfinite(ci), ci, -_BIG)
                 g = np.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
                 Je = np.nan_to_num(Je, nan=0.0, posinf=0.0, neginf=0.0)
                 Ji = np.nan_to_num(Ji, nan=0.0, posinf=0.0, neginf=0.0)
-            self.vals = (f, ce, ci, bad, g, Je, Ji)
+            else:
+                self.f_good = float(f)
+            self.vals = (float(f), ce, ci, bad, g, Je, Ji)
         return self.vals
 
-    def values(self, x):
-        """``(f, c_eq, c_in, bad)`` at x (masked, unscaled), without Jacobians where
-        ``lazy``."""
-        x = np.asarray(x, dtype=float)
-        if not self.lazy or (self.x is not None and np.array_equal(x, self.x)):
-            return self.at(x)[:4]
-        if self.xv is None or not np.array_equal(x, self.xv):
-            out = _values_fn(self.p)(jnp.asarray(x), self.data)
-            self.nev += 1
-            self.xv = x.copy()
-            self.vvals = self._sanitized(*(np.asarray(a) for a in out))
-        return self.vvals
-
     def violation(self, x):
-        f, ce, ci, bad = self.values(x)
+        f, ce, ci, bad, *_ = self.at(x)
         v = 0.0
         if ce.size:
             v = max(v, float(np.max(np.abs(ce))))
@@ -188,7 +122,7 @@ class _Tracker:
             self.best = (x, cost, viol, stage)
 
     def record(self, x, ev, stage, stage_params):
-        f, *_ = ev.values(x)
+        f, *_ = ev.at(x)
         viol = ev.violation(x)
         self.iteration += 1
         step = float(np.max(np.abs(x - self.prev_x))) if self.prev_x is not None else 0.0
@@ -342,7 +276,6 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     data0 = problem.data(params=plan[start_stage][0], q0=q0, v0=v0)
     if x0 is None and resume is None and problem.shooting > 1:
         x = problem.shoot_nodes(x, data0)  # the default guess's nodes: its own rollout
-    _warm_values(problem, x, data0)  # the values-only function alongside, where it is used
     tc = time.perf_counter()
     fj = problem.compiled("fun_jac")
     fj(jnp.asarray(x), data0)[0].block_until_ready()
@@ -373,7 +306,6 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
         data = problem.data(params=sparams, q0=q0, v0=v0)
         me, mi = problem.constraint_masks(level)
         ev = _Evaluator(problem, data, me, mi)
-        _warm_values(problem, x, data)
         x_start = np.array(x, float)
         f_init, *_rest = ev.at(x)
         if _rest[2] and k == 0:  # initial guess diverges
@@ -405,7 +337,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             stages_info.append(dict(stage=si, params=_jsonable(sparams), level=level, message=message,
                                     iterations=None))
             break
-        end = ev.values(x)
+        end = ev.at(x)
         viol_end = ev.violation(x)
         info_row = dict(stage=si, params=_jsonable(sparams), level=level, message=message, iterations=nit,
                         cost=end[0], violation=viol_end)
@@ -436,11 +368,11 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     if not interrupted and tracker.best is not None and ev is not None:
         # prefer the solver's final point; fall back to the best iterate if the final
         # point is worse (e.g. a failed line search left an infeasible point)
-        fx, vx = ev.values(x)[0], ev.violation(x)
+        fx, vx = ev.at(x)[0], ev.violation(x)
         bx, bf, bv, _ = tracker.best
         if vx > constraint_tol and bv <= constraint_tol:
             x = bx
-    f, *_ = ev.values(x)
+    f, *_ = ev.at(x)
     viol = ev.violation(x)
     data_final = ev.data
     traj = problem.compiled("trajectory")(jnp.asarray(x), data_final)
@@ -457,7 +389,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                 # work, the last stage end whose rollout did not diverge, and say so
                 fell_back = str(e)
                 x = last_sound[0]
-                f, *_ = ev.values(x)
+                f, *_ = ev.at(x)
                 viol = ev.violation(x)
                 traj = jax.tree_util.tree_map(np.asarray, problem.compiled("trajectory")(jnp.asarray(x), data_final))
     success = (not interrupted) and solver_ok and viol <= constraint_tol and fell_back is None
@@ -600,19 +532,15 @@ def _clip_into(x, lb, ub):
 def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
     from scipy.optimize import Bounds, minimize
 
-    # values and Jacobians asked for separately: SLSQP's line-search points need values
-    # only (`_Evaluator.values`)
     cons = []
     if ev.me.any():
-        cons.append(dict(type="eq", fun=lambda x: ev.values(x)[1], jac=lambda x: ev.at(x)[5]))
+        cons.append(dict(type="eq", fun=lambda x: ev.at(x)[1], jac=lambda x: ev.at(x)[5]))
     if ev.mi.any():
-        cons.append(dict(type="ineq", fun=lambda x: ev.values(x)[2], jac=lambda x: ev.at(x)[6]))
+        cons.append(dict(type="ineq", fun=lambda x: ev.at(x)[2], jac=lambda x: ev.at(x)[6]))
 
     def fun(x):
-        return ev.fscale * ev.values(x)[0]
-
-    def jac(x):
-        return ev.fscale * ev.at(x)[4]
+        v = ev.at(x)
+        return ev.fscale * v[0], ev.fscale * v[4]
 
     def cb(xk):
         tracker.record(xk, ev, stage, params)
@@ -621,7 +549,7 @@ def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
     opts.update(options or {})
     lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     bounds = Bounds(lb, ub) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
-    res = minimize(fun, _clip_into(x, lb, ub), jac=jac, method="SLSQP", constraints=cons, options=opts,
+    res = minimize(fun, _clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
                    callback=cb, bounds=bounds)
     return np.asarray(res.x), bool(res.success), f"SLSQP: {res.message}", int(res.nit)
 

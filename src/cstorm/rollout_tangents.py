@@ -214,10 +214,11 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
     W = jnp.concatenate([Z, U], axis=1)
     W0 = jnp.concatenate([Z, U[:, cols0]], axis=1)
 
-    # the grid points whose recorded data is returned: all K steps, or `rows`
-    ir = np.arange(K) if rows is None else np.asarray(rows, int)
-    at = lambda y: y if rows is None else y[ir]
-    R_ = len(ir)
+    # the grid points whose recorded data is returned: all K steps, or `rows`; their
+    # inputs to the grid-point Jacobians (and to its parameter tangents below)
+    at = (lambda y: y) if rows is None else (lambda y: y[np.asarray(rows, int)])
+    R_ = K if rows is None else len(rows)
+    args0 = (at(W0), at(Q), at(V), jax.tree_util.tree_map(at, XI))
 
     def jac_step(args):
         w, q, v, xik = args
@@ -228,7 +229,7 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
         return jax.jacfwd(P)(w0, consts, q, v, xik)
 
     D = _batched(jac_step, (W, Q, V, XI), K)  # (K, nz + 1, nw)
-    E = _batched(jac_point, (at(W0), at(Q), at(V), jax.tree_util.tree_map(at, XI)), R_)  # (R, n_out, nz + 3 na)
+    E = _batched(jac_point, args0, R_)  # (R, n_out, nz + 3 na)
     # frozen steps: the state is carried over, no input or cost sensitivity
     eye = jnp.eye(nz, nw, dtype=D.dtype)
     D = jnp.concatenate([jnp.where(keep[:, None, None], eye, D[:, :nz]),
@@ -246,8 +247,7 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
 
         R = jax.vmap(lambda w, q, v, xik: jax.jvp(lambda c: G(w, c, q, v, xik), (consts,), (dc,))[1])(W, Q, V, XI)
         R = jnp.where(keep[:, None], 0.0, R)
-        RP = jax.vmap(lambda w0, q, v, xik: jax.jvp(lambda c: P(w0, c, q, v, xik), (consts,), (dc,))[1])(
-            at(W0), at(Q), at(V), jax.tree_util.tree_map(at, XI))
+        RP = jax.vmap(lambda w0, q, v, xik: jax.jvp(lambda c: P(w0, c, q, v, xik), (consts,), (dc,))[1])(*args0)
 
     # the recurrence dz_{k+1} = D_zz dz_k + w_k
     wk = jnp.einsum("kij,kj->ki", D[:, :nz, nz:], dU)

@@ -597,18 +597,13 @@ class MotionProblem:
         that aggregate over all steps (``TorqueLimits(dense=True)``; a term that reads
         them declares ``uses_steps = True``). ``recorded``: ``tr`` holds the constraint
         grid's points only (`_record_rows`), and ``steps`` is not available."""
-        if recorded:
-            samples = dict(t=jnp.asarray(self.t[self.sample_idx]), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"],
-                           steps=_NoSteps())
-            if tr.get("contact") is not None:
-                samples["contact"] = tr["contact"]
-            return samples
         idx = self.sample_idx
-        samples = dict(t=jnp.asarray(self.t[idx]), q=tr["q"][idx], v=tr["v"][idx], a=tr["a"][idx],
-                       tau=tr["tau"][idx], steps=dict(t=jnp.asarray(self.t), q=tr["q"], v=tr["v"], a=tr["a"],
-                                                      tau=tr["tau"]))
+        at = (lambda y: y) if recorded else (lambda y: y[idx])
+        steps = _NoSteps() if recorded else dict(t=jnp.asarray(self.t), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"])
+        samples = dict(t=jnp.asarray(self.t[idx]), q=at(tr["q"]), v=at(tr["v"]), a=at(tr["a"]), tau=at(tr["tau"]),
+                       steps=steps)
         if tr.get("contact") is not None:
-            samples["contact"] = jax.tree_util.tree_map(lambda y: y[idx], tr["contact"])
+            samples["contact"] = jax.tree_util.tree_map(at, tr["contact"])
         return samples
 
     def constraint_masks(self, level=None):

@@ -10,4 +10,4 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install -q -e ".[test]"
 if [ -z "${CI:-}" ]; then export CSTORM_JAX_CACHE="${CSTORM_JAX_CACHE:-$PWD/.jax_cache}"; fi
 if [ "$#" -eq 0 ]; then set -- -m "not slow"; fi
-exec .venv/bin/python -m pytest -q -n "${CSTORM_TEST_WORKERS:-auto}" --dist loadfile --durations=20 "$@"
+exec .venv/bin/python -m pytest -q -n "${CSTORM_TEST_WORKERS:-auto}" --dist loadfile --no-loadscope-reorder --durations=20 "$@"

@@ -19,7 +19,12 @@ Algorithm.
 1. `_kinematics`: world placements, per-joint world motion subspaces ``J_i = oX_i S_i``,
    body twists ``ov``, world inertias ``oI``, momenta ``h``, and the composite (subtree)
    inertias ``Ycrb`` and their velocity variations ``doYcrb = sum (ov x* oI - oI ov x
-   + B(h))`` (``B(h) x = x x* h``).
+   + B(h))`` (``B(h) x = x x* h``). Both are summed in structured form (`_Inertia`: mass,
+   first moment, 3x3 inertia; `_InertiaRate`: a 3x3 block and a 3-vector, since the
+   right half of ``doYcrb`` is zero) and expanded once per body; products with
+   ``doYcrb`` use only the angular rows of the twists they act on. (Measured under
+   `vmap`: the hybrid derivatives 1.5x faster on Solo12, ~2x on TALOS, than with dense
+   6x6 sums.)
 2. `_dynamics`: world accelerations ``oa`` (gravity as the world's acceleration),
    subtree forces ``F`` (external wrenches subtracted), ``tau = J^T F + armature a``.
 3. `_rnea_partials`: dtau/dq, dtau/dv and M as masked dense products of stacked world
@@ -104,17 +109,55 @@ def _validate(model, q, v, a_active, tau_passive, active, f_ext, fn):
 
 
 # ============================================================================ analytic core
-def _force_cross_matrix(h):
-    """(6, 6) matrix ``B(h)`` with ``B(h) @ x == x x* h`` for any twist x:
-    ``-[[ [n]x, [f]x ], [ [f]x, 0 ]]`` for ``h = [n; f]``."""
-    n, f = sp.skew(h[:3]), sp.skew(h[3:])
-    return -jnp.block([[n, f], [f, jnp.zeros((3, 3), dtype=h.dtype)]])
-
-
 def _cross_force_cols(X, h):
     """Columns ``x x* h`` (6, k) for twists X (6, k) and one wrench h (6,): ``B(h) @ X``."""
     w, u = X[:3], X[3:]
     return jnp.concatenate([sp._cross3(w, h[:3]) + sp._cross3(u, h[3:]), sp._cross3(w, h[3:])])
+
+
+class _Inertia(NamedTuple):
+    """A spatial inertia about the world origin in structured form: mass ``m`` (),
+    first moment ``mc = m c`` (3,) (c: centre of mass) and rotational inertia about the
+    origin ``Ib`` (3, 3). The matrix (`_inertia_matrix`) is ``[[Ib, [mc]x], [-[mc]x, m 1]]``.
+    Sums of inertias (composite inertias) are sums of the three parts."""
+
+    m: jnp.ndarray
+    mc: jnp.ndarray
+    Ib: jnp.ndarray
+
+
+class _InertiaRate(NamedTuple):
+    """``dI/dt + B(h) = ov x* oI - oI (ov x) + B(h)`` for one body, or a subtree sum, in
+    structured form. For a rigid body with twist ``[w; u]`` and momentum ``h = [n; f]``
+    the linear momentum ``f = m u + w x mc`` is also ``d(mc)/dt``, so the upper-right
+    block cancels and the lower-right is zero: the matrix (`_rate_matrix`, its nonzero
+    left half) is ``[[D, 0], [-2 [f]x, 0]]`` with ``D = dIb/dt - [n]x`` (3, 3) and
+    ``dIb/dt = [w]x Ib - Ib [w]x - (u mc^T + mc u^T) + 2 (mc . u) 1``."""
+
+    D: jnp.ndarray
+    f: jnp.ndarray
+
+
+def _tree_add(a, b):
+    return jax.tree_util.tree_map(jnp.add, a, b)
+
+
+def _inertia_matrix(I):
+    """(6, 6) matrix of an `_Inertia`."""
+    C = sp.skew(I.mc)
+    return jnp.block([[I.Ib, C], [-C, I.m * jnp.eye(3, dtype=C.dtype)]])
+
+
+def _inertia_apply(I, x):
+    """``oI @ x`` for an `_Inertia` and twist(s) x (6,) or (6, k), without the matrix."""
+    w, u = x[:3], x[3:]
+    return jnp.concatenate([sp.mv(I.Ib, w) + sp._cross3(I.mc, u), I.m * u - sp._cross3(I.mc, w)])
+
+
+def _rate_matrix(R):
+    """(6, 3) nonzero left half ``[[D], [-2 [f]x]]`` of an `_InertiaRate`'s matrix: the
+    product with twists X (6, k) is ``_rate_matrix(R) @ X[:3]``."""
+    return jnp.concatenate([R.D, -2.0 * sp.skew(R.f)])
 
 
 class _Kin(NamedTuple):
@@ -124,12 +167,12 @@ class _Kin(NamedTuple):
     J: list  # (6, nv_i) joint motion subspace
     ov: list  # (6,) body twists
     vJ: list  # (6,) joint twists J_i v_i
-    oI: list  # (6, 6) body inertias
+    oI: list  # `_Inertia` body inertias
     h: list  # (6,) body momenta oI ov
     dVdq: list  # (6, nv_i) ov_parent x J_i, None at roots
     dAdv: list  # (6, nv_i) (ov_i + ov_parent) x J_i
     Ycrb: list  # (6, 6) composite (subtree) inertias
-    doYcrb: list  # (6, 6) subtree sums of  ov x* oI - oI (ov x) + B(h)
+    doYcrb: list  # (6, 3) left halves of the subtree sums of ov x* oI - oI (ov x) + B(h)
     Fext: list  # (6,) subtree sums of the external wrenches, or None
 
 
@@ -150,25 +193,29 @@ def _kinematics(model, q, v, f_ext):
             ovi = ov[par] + vJi
             dVdq.append(sp.cross_motion(ov[par], Ji))
             dAdv.append(sp.cross_motion(ovi + ov[par], Ji))
-        c = sp.mv(oR[i], model.com[i]) + op[i]
-        Ic = sp.mm(sp.mm(oR[i], model.inertia[i]), oR[i].T)
-        C = sp.skew(c)
         mi = model.mass[i]
-        oIi = jnp.block([[Ic + mi * sp.mm(C, C.T), mi * C], [mi * C.T, mi * jnp.eye(3, dtype=C.dtype)]])
-        hi = sp.mv(oIi, ovi)
-        X = sp.mm(oIi, sp.ad(ovi))
-        J.append(Ji), ov.append(ovi), vJ.append(vJi), oI.append(oIi), h.append(hi)
-        dY.append(_force_cross_matrix(hi) - X - X.T)
+        c = sp.mv(oR[i], model.com[i]) + op[i]
+        mc = mi * c
+        eye = jnp.eye(3, dtype=c.dtype)
+        Ib = sp.mm(sp.mm(oR[i], model.inertia[i]), oR[i].T) + mi * (jnp.dot(c, c) * eye - c[:, None] * c[None, :])
+        Ii = _Inertia(mi, mc, Ib)
+        hi = _inertia_apply(Ii, ovi)
+        w, u = ovi[:3], ovi[3:]
+        Z = sp.mm(sp.skew(w), Ib)
+        uc = u[:, None] * mc[None, :]
+        dIb = Z + Z.T - uc - uc.T + (2.0 * jnp.dot(mc, u)) * eye  # Z.T = -Ib [w]x
+        J.append(Ji), ov.append(ovi), vJ.append(vJi), oI.append(Ii), h.append(hi)
+        dY.append(_InertiaRate(dIb - sp.skew(hi[:3]), hi[3:]))
     Y = list(oI)
     Fext = [f_ext[i] for i in range(nb)] if f_ext is not None else [None] * nb
     for i in reversed(range(nb)):
         par = model.parents[i]
         if par >= 0:
-            Y[par] = Y[par] + Y[i]
-            dY[par] = dY[par] + dY[i]
+            Y[par] = _tree_add(Y[par], Y[i])
+            dY[par] = _tree_add(dY[par], dY[i])
             if f_ext is not None:
                 Fext[par] = Fext[par] + Fext[i]
-    return _Kin(J, ov, vJ, oI, h, dVdq, dAdv, Y, dY, Fext)
+    return _Kin(J, ov, vJ, oI, h, dVdq, dAdv, [_inertia_matrix(y) for y in Y], [_rate_matrix(d) for d in dY], Fext)
 
 
 def _dynamics(model, kin, a, f_ext):
@@ -180,7 +227,7 @@ def _dynamics(model, kin, a, f_ext):
     for i, par in enumerate(model.parents):
         s = model.v_starts[i]
         oai = (a0 if par < 0 else oa[par]) + sp.mv(kin.J[i], a[s: s + model.joints[i].nv]) + sp.cross_motion(kin.ov[i], kin.vJ[i])
-        fi = sp.mv(kin.oI[i], oai) + sp.cross_force(kin.ov[i], kin.h[i])
+        fi = _inertia_apply(kin.oI[i], oai) + sp.cross_force(kin.ov[i], kin.h[i])
         if f_ext is not None:
             fi = fi - f_ext[i]
         oa.append(oai), F.append(fi)
@@ -244,9 +291,9 @@ def _rnea_partials(model, kin, oa, F, f_ext, M=None):
         else:
             dVdq_k = kin.dVdq[k]
             dAdq_k = sp.cross_motion(oa[p], J[k]) + sp.cross_motion(kin.ov[p], dVdq_k)
-            dFdq_k = sp.mm(dY[k], dVdq_k) + sp.mm(Y[k], dAdq_k)
+            dFdq_k = sp.mm(dY[k], dVdq_k[:3]) + sp.mm(Y[k], dAdq_k)
         cols["dAdq"].append(dAdq_k), cols["dVdq"].append(dVdq_k), cols["dFdq"].append(dFdq_k)
-        cols["dFdv"].append(sp.mm(dY[k], J[k]) + sp.mm(Y[k], kin.dAdv[k]))
+        cols["dFdv"].append(sp.mm(dY[k], J[k][:3]) + sp.mm(Y[k], kin.dAdv[k]))
         cols["A"].append(sp.mm(Y[k], J[k]))
         cols["Bv"].append(sp.mm(dY[k].T, J[k]))
         G = F[k] if f_ext is None else F[k] + kin.Fext[k]
@@ -264,14 +311,14 @@ def _rnea_partials(model, kin, oa, F, f_ext, M=None):
     dq_up = sp.mm(JT, C["dFdq"])
     dq = mask(up) * dq_up + mask(sup) * sp.mm(JT, C["XG"])
     if f_ext is None:
-        low = sp.mm(jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"]]))
+        low = sp.mm(jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"][:3]]))
     else:
         dq = dq + mask(same) * sp.mm(JT, C["XE"])
-        low = sp.mm(jnp.concatenate([C["A"], C["Bv"], -C["XE"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"], Jc]))
+        low = sp.mm(jnp.concatenate([C["A"], C["Bv"], -C["XE"]]).T, jnp.concatenate([C["dAdq"], C["dVdq"][:3], Jc]))
     dq = dq + mask(sdown) * low
     # dtau/dv
     dv = mask(up) * sp.mm(JT, C["dFdv"]) + mask(sdown) * sp.mm(
-        jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdv"], Jc]))
+        jnp.concatenate([C["A"], C["Bv"]]).T, jnp.concatenate([C["dAdv"], Jc[:3]]))
     return M, dq, dv, Jc
 
 
@@ -288,24 +335,50 @@ def _spd_inverse(A):
 
 
 # ============================================================================ hybrid layer
+def _runs(idx):
+    """Static sorted indices -> list of contiguous ``(start, stop)`` runs."""
+    runs = []
+    for i in np.asarray(idx, dtype=int):
+        if runs and runs[-1][1] == i:
+            runs[-1][1] = i + 1
+        else:
+            runs.append([int(i), int(i) + 1])
+    return [tuple(r) for r in runs]
+
+
 def _rows(ia, ip, top, bottom):
-    """Interleave the active-row block ``top`` and passive-row block ``bottom`` in v order."""
+    """Interleave the active-row block ``top`` and passive-row block ``bottom`` (along
+    axis 0) in v order, as a concatenation of static slices (no gather)."""
     if not len(ip):
         return top
     if not len(ia):
         return bottom
-    perm = np.argsort(np.concatenate([ia, ip]), kind="stable")
-    return jnp.concatenate([top, bottom], axis=0)[perm]
+    pieces, na, npas = [], 0, 0
+    act = np.zeros(len(ia) + len(ip), dtype=bool)
+    act[np.asarray(ia)] = True
+    # walk v order, switching between the blocks at each change of activity
+    edges = [0] + [r for r in range(1, len(act)) if act[r] != act[r - 1]] + [len(act)]
+    for s0, s1 in zip(edges[:-1], edges[1:]):
+        n = s1 - s0
+        if act[s0]:
+            pieces.append(jax.lax.slice_in_dim(top, na, na + n, axis=0))
+            na += n
+        else:
+            pieces.append(jax.lax.slice_in_dim(bottom, npas, npas + n, axis=0))
+            npas += n
+    return pieces[0] if len(pieces) == 1 else jnp.concatenate(pieces, axis=0)
 
 
 def _take(X, idx, axis=0):
-    """X restricted to the static indices idx along axis (a slice when contiguous)."""
+    """X restricted to the static sorted indices idx along axis, as a concatenation of
+    static slices (no gather)."""
     idx = np.asarray(idx)
     if len(idx) == X.shape[axis] and np.all(idx == np.arange(len(idx))):
         return X
-    if len(idx) and np.all(np.diff(idx) == 1):
-        return jax.lax.slice_in_dim(X, int(idx[0]), int(idx[-1]) + 1, axis=axis)
-    return jnp.take(X, jnp.asarray(idx), axis=axis)
+    pieces = [jax.lax.slice_in_dim(X, a, b, axis=axis) for a, b in _runs(idx)]
+    if not pieces:
+        return jax.lax.slice_in_dim(X, 0, 0, axis=axis)
+    return pieces[0] if len(pieces) == 1 else jnp.concatenate(pieces, axis=axis)
 
 
 def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
@@ -323,7 +396,7 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
     nv, nb = model.nv, model.n_bodies
     dtype = jnp.result_type(v, a_active, tau_passive)
     kin = _kinematics(model, q, v, f_ext)
-    a = jnp.zeros(nv, dtype=dtype).at[ia].set(a_active) if len(ip) else a_active
+    a = _rows(ia, ip, a_active, jnp.zeros(len(ip), dtype=dtype))
     M0 = None
     if len(ip):
         # passive accelerations from M_pp a_p = tau_p - rnea_p(q, v, [a_a; 0], f_ext)
@@ -331,7 +404,7 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
         M0 = _mass_only(model, kin)
         Minv = _spd_inverse(_take(_take(M0, ip, 0), ip, 1))
         a_p = sp.mv(Minv, tau_passive - _take(tau0, ip))
-        a = a + jnp.zeros(nv, dtype=dtype).at[ip].set(a_p)
+        a = _rows(ia, ip, a_active, a_p)
     oa, F, tau = _dynamics(model, kin, a, f_ext)
     M, dq, dv, Jc = _rnea_partials(model, kin, oa, F, f_ext, M0)
     anc, dj, *_ = _tree_masks(model)

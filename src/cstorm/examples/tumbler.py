@@ -77,7 +77,10 @@ Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
   ~1e-14): 24/24 criteria, 493 SLSQP iterations (177 / 153 / 86 / 77), costs 12.232 +
   4.212 + 17.018 + 0.155 = 33.616; 450 s from a cold cache (148 s compiling; 399 / 23 /
   15 / 12 s) on a machine where the session-19 code took 466 s along its 564-iteration
-  path; fidelity 0.50 mm / 0.067 deg. Before (session 19, every single-shooting
+  path; fidelity 0.50 mm / 0.067 deg. The same code on a quieter machine (session 25):
+  the same path in 308 s cold (265 / 17 / 14 / 12 s; 62 s compiling), 337 s with
+  ``MotionSequence.solve_options["precompile"] = False`` (165 s compiling, 171 s
+  iterating). Before (session 19, every single-shooting
   segment with ``derivatives="parallel"``, roll/standing/start with analytic contact derivatives and the constraint grid's
   Jacobians only): 24/24 criteria, 564 SLSQP iterations (237 / 173 / 77 / 77), costs
   10.741 + 4.203 + 16.987 + 0.155 = 32.085; 250 s with a warm compile cache (session

@@ -37,7 +37,7 @@ Algorithm.
 
 Cost: O(n d) per-joint 6-vector work plus O(nv^2) masked products for the partials;
 an O(n_p^3) Cholesky-based inverse of M_pp and O(nv^2 n_p) products for the hybrid/ABA
-rows. df_ext is accumulated down the tree in O(nv^2).
+rows. df_ext (`_df_ext`) costs O(nv n_bodies depth).
 
 Everything is unrolled over the static tree with fixed-size arrays, for `jit` and `vmap`;
 the functions are themselves differentiable by JAX (second derivatives).
@@ -388,12 +388,12 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
     M[:, a] for da_active), the passive rows give ``d a_p = -M_pp^-1 dR_p`` and the active
     rows ``d tau_a = dR_a + M_ap d a_p``: ``dy = S dR`` with ``S[:, a] = I[:, a]`` and
     ``S[:, p] = Sp = [-M_ap M_pp^-1 ; -M_pp^-1]`` (rows a; p); ``dy/dtau_p = -Sp``.
-    dR/df_ext_b = -J_j^T on the DoFs j supporting body b, so ``dy/df_ext_b`` is
-    accumulated down the tree: ``Y_b = Y_parent(b) - S[:, dofs(b)] J_b^T``.
+    dR/df_ext_b = -J_j^T on the DoFs j supporting body b, so ``dy/df_ext_b =
+    -sum_j S[:, j] J_j^T`` over them (`_df_ext`).
     """
     act = np.array(active, dtype=bool)
     ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
-    nv, nb = model.nv, model.n_bodies
+    nv = model.nv
     dtype = jnp.result_type(v, a_active, tau_passive)
     kin = _kinematics(model, q, v, f_ext)
     a = _rows(ia, ip, a_active, jnp.zeros(len(ip), dtype=dtype))
@@ -407,10 +407,8 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
         a = _rows(ia, ip, a_active, a_p)
     oa, F, tau = _dynamics(model, kin, a, f_ext)
     M, dq, dv, Jc = _rnea_partials(model, kin, oa, F, f_ext, M0)
-    anc, dj, *_ = _tree_masks(model)
     if not len(ip):
-        df = -(jnp.asarray(anc[dj], dtype=dtype)[:, :, None] * Jc.T[:, None, :])
-        return HybridDerivatives(tau, dq, dv, M, jnp.zeros((nv, 0), dtype=dtype), df)
+        return HybridDerivatives(tau, dq, dv, M, jnp.zeros((nv, 0), dtype=dtype), _df_ext(model, act, None, Jc))
     if len(ia):
         K = _take(_take(M, ia, 0), ip, 1) @ Minv
         Sp = _rows(ia, ip, -K, -Minv)
@@ -428,20 +426,33 @@ def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
     SX = S_times(jnp.concatenate(blocks, axis=1))
     Dq, Dv = SX[:, :nv], SX[:, nv: 2 * nv]
     Da = SX[:, 2 * nv:] if len(ia) else jnp.zeros((nv, 0), dtype=dtype)
-    # external wrenches, accumulated down the tree
+    return HybridDerivatives(y, Dq, Dv, Da, -Sp, _df_ext(model, act, Sp, Jc))
+
+
+def _df_ext(model, act, Sp, Jc):
+    """``dy/df_ext`` (nv, n_bodies, 6). ``dR/df_ext_b = -J_j^T`` on the DoFs j supporting
+    body b (its joint's and its ancestors'), so ``dy/df_ext_b = -sum_j S[:, j] J_j^T``:
+    for a passive DoF j the column ``S[:, j]`` is ``Sp``'s (``Sp`` (nv, n_passive), None
+    when every DoF is active), for an active one the unit vector ``e_j``, which only
+    writes ``-J_j^T`` into row j (a static mask). Each body's passive sum is written out
+    directly rather than accumulated down the tree: under `vmap` that fuses into one loop
+    over the output (measured on TALOS, batch 4096: 11 us per configuration against
+    15-16 us for the accumulation; writing the 60 KB output alone takes ~2.5 us)."""
+    anc, dj, *_ = _tree_masks(model)
+    nv, nb = model.nv, model.n_bodies
+    dtype = Jc.dtype
+    ip = np.nonzero(~act)[0]
     pos = np.full(nv, -1)
     pos[ip] = np.arange(len(ip))
-    Yf = [None] * nb
+    amask = anc[dj] & act[:, None]  # (nv, nb): active row j supports body b
+    out = -(jnp.asarray(amask, dtype=dtype)[:, :, None] * Jc.T[:, None, :])
+    if not len(ip):
+        return out
+    cols = []
     for b in range(nb):
-        s, n = model.v_starts[b], model.joints[b].nv
-        Scols = []
-        for r in range(s, s + n):
-            Scols.append(Sp[:, pos[r]: pos[r] + 1] if not act[r] else jnp.asarray(np.eye(nv)[:, r: r + 1], dtype=dtype))
-        Sb = jnp.concatenate(Scols, axis=1)
-        Yb = -sp.mm(Sb, Jc[:, s: s + n].T)
-        Yf[b] = Yb if model.parents[b] < 0 else Yf[model.parents[b]] + Yb
-    Df = jnp.stack(Yf, axis=1)
-    return HybridDerivatives(y, Dq, Dv, Da, -Sp, Df)
+        terms = [Sp[:, pos[j], None] * Jc[None, :, j] for j in ip if anc[dj[j], b]]
+        cols.append(sum(terms[1:], terms[0]) if terms else jnp.zeros((nv, 6), dtype=dtype))
+    return out - jnp.stack(cols, axis=1)
 
 
 def _mass_only(model, kin):

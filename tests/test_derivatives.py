@@ -65,14 +65,11 @@ def _inputs(model, topology, seed, kind="mixed", with_fext=True, neutral=False):
 _y = jit(DAD._y, static_argnums=(5,))
 _hyb_ad = jit(DAD.hybrid_dynamics_derivatives_ad, static_argnames=("active",))
 _hyb = jit(D.hybrid_dynamics_derivatives, static_argnames=("active",))
-# The autodiff reference op by op, without compiling it: ~2 s a call on these trees after
-# a first call of ~10 s, against 20-40 s to compile each new (tree, mask, f_ext/None)
-# combination. For references that only one or two calls use.
-_hyb_ad_eager = DAD.hybrid_dynamics_derivatives_ad
-_rnea_ad = jit(DAD.rnea_derivatives_ad)
 _rnea = jit(D.rnea_derivatives)
-_aba_ad = jit(DAD.aba_derivatives_ad)
 _aba = jit(D.aba_derivatives)
+# References that only one or two calls use are not compiled: the `DAD` functions run op
+# by op, ~2 s a call on these trees after a first call of ~10 s, against 20-40 s to
+# compile each new (tree, mask, f_ext/None) combination of the jacfwd reference.
 
 
 def _rel(a, b):
@@ -152,24 +149,24 @@ def test_analytic_hybrid_without_fext(topology):
         q, v, aa, tp, active, _ = _inputs(model, topology, p, with_fext=False)
         got = _hyb(model, q, v, aa, tp, active=active)
         assert got.df_ext.shape == (model.nv, model.n_bodies, 6)
-        _compare(got, _hyb_ad_eager(model, q, v, aa, tp, active=active))
+        _compare(got, DAD.hybrid_dynamics_derivatives_ad(model, q, v, aa, tp, active=active))
 
 
 @pytest.mark.parametrize("topology,with_fext", [(1, True), pytest.param(3, True, marks=SLOW),
                                                 pytest.param(1, False, marks=SLOW)])
 def test_analytic_rnea_and_aba_match_autodiff(topology, with_fext):
     """Reference: jacfwd through the hybrid algorithm with every DoF active (= RNEA) or
-    passive (= ABA), run eagerly (`_hyb_ad_eager`)."""
+    passive (= ABA), run eagerly."""
     for p in PARAMS[:2]:
         model = _tree(topology, p)
         rng = np.random.default_rng(p)
         q, v, a = random_state(model, rng)
         f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6))) if with_fext else None
         z = jnp.zeros(0)
-        ref = _hyb_ad_eager(model, q, v, a, z, active=_active_mask(model, topology, "all"), f_ext=f_ext)
+        ref = DAD.hybrid_dynamics_derivatives_ad(model, q, v, a, z, _active_mask(model, topology, "all"), f_ext)
         _compare(_rnea(model, q, v, a, f_ext), D.RNEADerivatives(ref.y, ref.dq, ref.dv, ref.da_active, ref.df_ext))
         tau = jnp.asarray(rng.normal(size=model.nv))
-        ref = _hyb_ad_eager(model, q, v, z, tau, active=_active_mask(model, topology, "none"), f_ext=f_ext)
+        ref = DAD.hybrid_dynamics_derivatives_ad(model, q, v, z, tau, _active_mask(model, topology, "none"), f_ext)
         _compare(_aba(model, q, v, tau, f_ext), D.ABADerivatives(ref.y, ref.dq, ref.dv, ref.dtau_passive, ref.df_ext))
 
 
@@ -181,8 +178,8 @@ def test_autodiff_rnea_and_aba_references():
     rng = np.random.default_rng(5)
     q, v, a = random_state(model, rng)
     f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6)))
-    _compare(_rnea(model, q, v, a, f_ext), _rnea_ad(model, q, v, a, f_ext))
-    _compare(_aba(model, q, v, a, f_ext), _aba_ad(model, q, v, a, f_ext))
+    _compare(_rnea(model, q, v, a, f_ext), DAD.rnea_derivatives_ad(model, q, v, a, f_ext))
+    _compare(_aba(model, q, v, a, f_ext), DAD.aba_derivatives_ad(model, q, v, a, f_ext))
 
 
 def test_identities():

@@ -152,6 +152,20 @@ def test_analytic_hybrid_without_fext(topology):
         _compare(got, DAD.hybrid_dynamics_derivatives_ad(model, q, v, aa, tp, active=active))
 
 
+def test_hybrid_layer_product_forms_agree(monkeypatch):
+    """The hybrid layer multiplies S into [dq | dv | M[:, a]] concatenated (up to
+    `_CONCAT_MAX_NV` DoFs, as the small trees here) or block by block (larger models,
+    e.g. TALOS); both forms give the same numbers."""
+    model = _tree(1, 0)
+    assert model.nv <= D._CONCAT_MAX_NV
+    q, v, aa, tp, active, f_ext = _inputs(model, 1, 0)
+    assert any(active) and not all(active)
+    ref = jit(D._hybrid_derivatives, static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
+    monkeypatch.setattr(D, "_CONCAT_MAX_NV", 0)  # read at trace time: a new function, a new trace
+    got = jit(lambda *args: D._hybrid_derivatives(*args), static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
+    _compare(got, ref, tol=1e-13)
+
+
 @pytest.mark.parametrize("topology,with_fext", [(1, True), pytest.param(3, True, marks=SLOW),
                                                 pytest.param(1, False, marks=SLOW)])
 def test_analytic_rnea_and_aba_match_autodiff(topology, with_fext):
@@ -180,6 +194,23 @@ def test_autodiff_rnea_and_aba_references():
     f_ext = jnp.asarray(rng.normal(size=(model.n_bodies, 6)))
     _compare(_rnea(model, q, v, a, f_ext), DAD.rnea_derivatives_ad(model, q, v, a, f_ext))
     _compare(_aba(model, q, v, a, f_ext), DAD.aba_derivatives_ad(model, q, v, a, f_ext))
+
+
+@pytest.mark.parametrize("n", (1, 2, 7, 22, 38))
+def test_spd_inverse_against_numpy(n):
+    """`_spd_inverse` (LAPACK Cholesky, recursive blocked triangular inverse) on random
+    SPD matrices with condition numbers 1e2 and 1e8, against numpy's LU inverse: the
+    error stays at cond * eps."""
+    rng = np.random.default_rng(n)
+    for cond in (1e2, 1e8):
+        Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        A = Q @ np.diag(np.logspace(0, np.log10(cond), n)) @ Q.T
+        A = (A + A.T) / 2
+        got = np.asarray(jit(D._spd_inverse)(jnp.asarray(A)))
+        want = np.linalg.inv(A)
+        assert np.abs(got - want).max() / np.abs(want).max() < 100 * cond * np.finfo(float).eps
+        L = np.linalg.cholesky(A)
+        assert np.allclose(np.asarray(jit(D._tril_inverse)(jnp.asarray(L))) @ L, np.eye(n), atol=1e-10 * cond ** 0.5)
 
 
 def test_identities():

@@ -387,14 +387,29 @@ def _mass_from_columns(model, tree, J, A):
 
 def _spd_inverse(A):
     """Inverse of a symmetric positive definite matrix (n, n): Cholesky ``A = L L^T``,
-    ``W = L^-1`` by a triangular solve, ``A^-1 = W^T W``. (Unrolled elementwise versions
-    were 4-8x slower under `vmap` on CPU for n >= 18.)"""
+    ``W = L^-1`` (`_tril_inverse`), ``A^-1 = W^T W``. (Under `vmap` on CPU, batch 4096:
+    n = 38 takes 18 us against 48-51 us with a batched triangular solve for W, n = 22
+    5.8 against 7.1 us, with the same accuracy, as both use the same L; unrolled
+    elementwise Cholesky factorizations were 4-8x slower for n >= 18.)"""
     n = A.shape[0]
     if n == 1:
         return 1.0 / A
-    L = jnp.linalg.cholesky(A)
-    W = jax.scipy.linalg.solve_triangular(L, jnp.eye(n, dtype=A.dtype), lower=True)
+    W = _tril_inverse(jnp.linalg.cholesky(A))
     return sp.mm(W.T, W)
+
+
+def _tril_inverse(L):
+    """Inverse of a lower-triangular matrix (n, n) with a positive diagonal, by recursive
+    2x2 blocking: ``[[A, 0], [B, C]]^-1 = [[A^-1, 0], [-C^-1 B A^-1, C^-1]]``, the
+    products as sums of outer products (`spatial.mm`)."""
+    n = L.shape[0]
+    if n == 1:
+        return 1.0 / L
+    h = n // 2
+    Ai, Ci = _tril_inverse(L[:h, :h]), _tril_inverse(L[h:, h:])
+    X = -sp.mm(Ci, sp.mm(L[h:, :h], Ai))
+    top = jnp.concatenate([Ai, jnp.zeros((h, n - h), dtype=L.dtype)], axis=1)
+    return jnp.concatenate([top, jnp.concatenate([X, Ci], axis=1)], axis=0)
 
 
 # ============================================================================ hybrid layer

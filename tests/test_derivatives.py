@@ -24,8 +24,8 @@ TOPOLOGIES = (0, 1, 2, 3, 5)
 PARAMS = (0, 1, 2)
 SLOW = pytest.mark.slow  # compile-heavy variants (run with -m slow or without -m filtering)
 
-# Compile-time budget: these unrolled trees take ~5-40 s each to compile with XLA's full
-# CPU optimization on 2 cores; the tests only need correct numbers, so they compile with
+# Compile-time budget: the jacfwd references on these trees take ~5-40 s each to compile
+# with XLA's full CPU optimization on 2 cores; the tests only need correct numbers, so they compile with
 # the backend optimizations off (~2-3x faster), and every jitted function is reused
 # across parameter draws of one topology (same pytree structure: one compilation).
 jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0,

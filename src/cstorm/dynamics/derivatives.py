@@ -19,8 +19,8 @@ Algorithm. Per-body and per-DoF quantities are stacked along a trailing axis (tw
 (6, n), 3x3 blocks (3, 3, n)), so each step is one elementwise expression over all bodies
 or DoFs; sums along the tree (twists towards the leaves, inertias and forces towards
 the roots) are products with the static ancestor matrix. (Measured on TALOS under
-`vmap`: compile 17 s instead of 83 s for the per-body unrolled form, and ~10-20 %
-faster to run; see benchmarks/README.md.)
+`vmap`: compile 16-19 s instead of 83-86 s for the per-body unrolled form, and ~10 %
+faster to run; see benchmarks/README.md, session 27.)
 1. `_kinematics`: world placements, world motion subspace columns ``J`` (6, nv), body
    twists ``ov``, world inertias ``oI``, momenta ``h``, and the composite (subtree)
    inertias ``Ycrb`` and their velocity variations ``doYcrb = sum (ov x* oI - oI ov x

@@ -136,12 +136,8 @@ def _tree_masks(model):
 # twists and wrenches (6, n), 3-vectors (3, n), 3x3 blocks (3, 3, n). Each step is then
 # one elementwise expression over all bodies (or DoFs) instead of one small expression
 # per body, and the sums along the tree (twists down to the leaves, inertias and forces
-# up to the roots) are products with the static ancestor matrix.
-def _cross(a, b):
-    """cross(a, b) along axis 0 of (3, n) arrays."""
-    return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
+# up to the roots) are products with the static ancestor matrix. `spatial`'s cross
+# products, `skew` and `mm` act elementwise over such trailing axes.
 def _bmv(A, x):
     """Stacked matrix-vector products ``A[:, :, n] @ x[:, n]``: A (r, c, n), x (c, n) -> (r, n)."""
     out = A[:, 0] * x[0]
@@ -158,34 +154,6 @@ def _bmtv(A, x):
     return out
 
 
-def _bmm(A, B):
-    """Stacked matrix products ``A[..., n] @ B[..., n]``: (r, c, n), (c, s, n) -> (r, s, n)."""
-    out = A[:, 0:1] * B[0:1]
-    for k in range(1, A.shape[1]):
-        out = out + A[:, k: k + 1] * B[k: k + 1]
-    return out
-
-
-def _bskew(v):
-    """(3, n) -> (3, 3, n) with ``[v]x``."""
-    x, y, z = v[0], v[1], v[2]
-    zero = jnp.zeros_like(x)
-    return jnp.stack([jnp.stack([zero, -z, y]), jnp.stack([z, zero, -x]), jnp.stack([-y, x, zero])])
-
-
-def _xm(v, m):
-    """Motion cross products ``v x m`` of stacked twists (6, n)."""
-    w, u = v[:3], v[3:]
-    return jnp.concatenate([_cross(w, m[:3]), _cross(w, m[3:]) + _cross(u, m[:3])])
-
-
-def _xf(v, f):
-    """Force cross products ``v x* f`` of stacked twists and wrenches (6, n); also
-    ``B(f) v``, the columns ``v x* f`` for twists v and wrenches f."""
-    w, u = v[:3], v[3:]
-    return jnp.concatenate([_cross(w, f[:3]) + _cross(u, f[3:]), _cross(w, f[3:])])
-
-
 class _Inertia(NamedTuple):
     """Stacked spatial inertias about the world origin in structured form: masses ``m``
     (n,), first moments ``mc = m c`` (3, n) (c: centre of mass) and rotational inertias
@@ -199,7 +167,7 @@ class _Inertia(NamedTuple):
     def apply(self, x):
         """``I x`` for stacked twists x (6, n)."""
         w, u = x[:3], x[3:]
-        return jnp.concatenate([_bmv(self.Ib, w) + _cross(self.mc, u), self.m * u - _cross(self.mc, w)])
+        return jnp.concatenate([_bmv(self.Ib, w) + sp._cross3(self.mc, u), self.m * u - sp._cross3(self.mc, w)])
 
     def take(self, idx):
         return _Inertia(self.m[idx], self.mc[:, idx], self.Ib[..., idx])
@@ -218,18 +186,18 @@ class _InertiaRate(NamedTuple):
 
     def apply(self, x):
         """The rate times stacked twists x (6, n): only their angular rows enter."""
-        return jnp.concatenate([_bmv(self.D, x[:3]), -2.0 * _cross(self.f, x[:3])])
+        return jnp.concatenate([_bmv(self.D, x[:3]), -2.0 * sp._cross3(self.f, x[:3])])
 
     def apply_T(self, x):
         """The (3, n) nonzero rows of the transpose times stacked twists x (6, n)."""
-        return _bmtv(self.D, x[:3]) + 2.0 * _cross(self.f, x[3:])
+        return _bmtv(self.D, x[:3]) + 2.0 * sp._cross3(self.f, x[3:])
 
     def take(self, idx):
         return _InertiaRate(self.D[..., idx], self.f[:, idx])
 
 
 class _Tree(NamedTuple):
-    """Static structure (numpy): parents, dj (nv,) the body of each DoF, anc (nb, nb)
+    """Static structure (numpy): dj (nv,) the body of each DoF, anc (nb, nb)
     float with anc[j, k] = 1 when body j is k or an ancestor of k, member (nb, nv) with
     member[b, k] = 1 when DoF k is body b's, up/same/strict_up/strict_down (nv, nv) over
     DoFs as in `_tree_masks`."""
@@ -279,26 +247,26 @@ def _kinematics(model, tree, q, v, f_ext):
     dj, anc = tree.dj, jnp.asarray(tree.anc, dtype=R.dtype)
     Rd, pd = R[..., dj], p[:, dj]
     w = _bmv(Rd, S[:3])
-    J = jnp.concatenate([w, _bmv(Rd, S[3:]) + _cross(pd, w)])
+    J = jnp.concatenate([w, _bmv(Rd, S[3:]) + sp._cross3(pd, w)])
     vJ = (J * v) @ jnp.asarray(tree.member.T, dtype=R.dtype)  # (6, nb)
     ov = vJ @ anc
     ovp = ov - vJ
     ovd, ovpd = ov[:, dj], ovp[:, dj]
-    dVdq, dAdv = _xm(ovpd, J), _xm(ovd + ovpd, J)
+    dVdq, dAdv = sp.cross_motion(ovpd, J), sp.cross_motion(ovd + ovpd, J)
     # world inertias, momenta and inertia rates, all bodies at once
     m = model.mass
     c = _bmv(R, model.com.T) + p
     mc = m * c
     eye = jnp.eye(3, dtype=c.dtype)[:, :, None]
-    RI = _bmm(R, jnp.moveaxis(model.inertia, 0, -1))
-    Ib = _bmm(RI, jnp.swapaxes(R, 0, 1)) + m * (jnp.sum(c * c, axis=0) * eye - c[:, None] * c[None, :])
+    RI = sp.mm(R, jnp.moveaxis(model.inertia, 0, -1))
+    Ib = sp.mm(RI, jnp.swapaxes(R, 0, 1)) + m * (jnp.sum(c * c, axis=0) * eye - c[:, None] * c[None, :])
     oI = _Inertia(m, mc, Ib)
     h = oI.apply(ov)
     w, u = ov[:3], ov[3:]
-    Z = _bmm(_bskew(w), Ib)
+    Z = sp.mm(sp.skew(w), Ib)
     uc = u[:, None] * mc[None, :]
     ZT, ucT = jnp.swapaxes(Z, 0, 1), jnp.swapaxes(uc, 0, 1)
-    D = Z + ZT - uc - ucT + 2.0 * jnp.sum(mc * u, axis=0) * eye - _bskew(h[:3])
+    D = Z + ZT - uc - ucT + 2.0 * jnp.sum(mc * u, axis=0) * eye - sp.skew(h[:3])
     # subtree sums of all parts in one product with the ancestor matrix
     nb = model.n_bodies
     parts = jnp.concatenate([m[None].astype(c.dtype), mc, Ib.reshape(9, nb), D.reshape(9, nb), h[3:]])
@@ -316,9 +284,9 @@ def _dynamics(model, tree, kin, a, f_ext):
     ``[0; -g]``), parent accelerations oap (6, nb) (``[0; -g]`` at roots), subtree forces
     F (6, nb) (external wrenches subtracted) and tau (nv,) = J^T F + armature a."""
     anc = jnp.asarray(tree.anc, dtype=kin.J.dtype)
-    local = (kin.J * a) @ jnp.asarray(tree.member.T, dtype=kin.J.dtype) + _xm(kin.ov, kin.vJ)
+    local = (kin.J * a) @ jnp.asarray(tree.member.T, dtype=kin.J.dtype) + sp.cross_motion(kin.ov, kin.vJ)
     oa = gravity_acceleration(model)[:, None] + local @ anc
-    f = kin.oI.apply(oa) + _xf(kin.ov, kin.h)
+    f = kin.oI.apply(oa) + sp.cross_force(kin.ov, kin.h)
     if f_ext is not None:
         f = f - f_ext.T
     F = f @ anc.T
@@ -348,13 +316,13 @@ def _rnea_partials(model, tree, kin, oap, F, f_ext, M=None):
     dj, J = tree.dj, kin.J
     dtype = J.dtype
     Y, dY = kin.Ycrb.take(dj), kin.doYcrb.take(dj)
-    dAdq = _xm(oap[:, dj], J) + _xm(kin.ovp[:, dj], kin.dVdq)
+    dAdq = sp.cross_motion(oap[:, dj], J) + sp.cross_motion(kin.ovp[:, dj], kin.dVdq)
     dFdq = dY.apply(kin.dVdq) + Y.apply(dAdq)
     dFdv = dY.apply(J) + Y.apply(kin.dAdv)
     A = Y.apply(J)
     Bv = dY.apply_T(J)
     G = F if f_ext is None else F + kin.Fext
-    XG = _xf(J, G[:, dj])
+    XG = sp.cross_force(J, G[:, dj])
     mask = lambda m: jnp.asarray(m, dtype=dtype)
     if M is None:
         M = _mass_from_columns(model, tree, J, A)
@@ -363,7 +331,7 @@ def _rnea_partials(model, tree, kin, oap, F, f_ext, M=None):
     if f_ext is None:
         low = sp.mm(jnp.concatenate([A, Bv]).T, jnp.concatenate([dAdq, kin.dVdq[:3]]))
     else:
-        XE = _xf(J, kin.Fext[:, dj])
+        XE = sp.cross_force(J, kin.Fext[:, dj])
         dq = dq + mask(tree.same) * sp.mm(JT, XE)
         low = sp.mm(jnp.concatenate([A, Bv, -XE]).T, jnp.concatenate([dAdq, kin.dVdq[:3], J]))
     dq = dq + mask(tree.sdown) * low

@@ -68,6 +68,7 @@ class FlightClearance(Constraint):
 
 
 class AtRest(Constraint):
+    ddp = "end"
     """The passive DoFs (the floating base) end at rest: ``v_p(T) = 0`` and, with
     ``acceleration=True``, ``a_p(T) = 0`` (so the final state is a static equilibrium, not
     the turning point of a bounce); ``2 n_passive`` equalities (m/s, rad/s, m/s^2, rad/s^2;
@@ -117,6 +118,7 @@ class AtRest(Constraint):
 
 
 class ForwardDistance(Constraint):
+    ddp = "end"
     """``scale (q_j(T) - q_j(0) - distance) >= 0`` for the prismatic base joint ``joint``
     (``distance`` in m, a problem-parameter name allowed; ``scale`` 1/m, default 10). One
     inequality."""
@@ -141,6 +143,7 @@ class ForwardDistance(Constraint):
 
 
 class PitchBound(Constraint):
+    ddp = "path"
     """``|q_j - center| <= bound`` for the base's pitch joint ``joint`` (rad) on the
     constraint grid: keeps the robot from tipping over during the motion (and gives the
     optimizer a gradient against falling long before the end). ``bound`` may name a

@@ -44,9 +44,29 @@ class Constraint:
     #: whether ``values`` reads ``samples["steps"]`` (every integration step): when no term
     #: does, the rollout records the constraint grid only (cheaper derivatives)
     uses_steps = False
+    #: how ``method="ddp"`` evaluates the term (`cstorm.optimize.ddp_problem`): ``"path"``
+    #: (at every node, `point_values`), ``"end"`` (at the final node: ``values`` with the
+    #: start state as the only sample), ``"box"`` (bounds on the controls,
+    #: `TorqueLimits.control_bounds`) or None (the term reads the whole trajectory at once)
+    ddp = None
 
     def check(self, problem):
         pass
+
+    def point_values(self, ctx, point):
+        """The term's values at one instant, for ``ddp = "path"``: ``point`` is a dict
+        ``t`` (s), ``q (nq,)``, ``v, a, tau (nv,)`` and ``contact`` (that instant's
+        contact data, or None). Default: ``values`` on a one-sample trajectory."""
+        one = {k: (None if point.get(k) is None else
+                   jax.tree_util.tree_map(lambda y: jnp.asarray(y)[None], point[k]))
+               for k in ("t", "q", "v", "a", "tau", "contact")}
+        if one["contact"] is None:
+            del one["contact"]
+        return self.values(ctx, None, one)
+
+    def node_mask(self, problem):
+        """(N+1,) bool: the grid points where a ``"path"`` term holds (default: all)."""
+        return np.ones(problem.n_steps + 1, bool)
 
     def values(self, ctx, end, samples):
         raise NotImplementedError
@@ -70,6 +90,7 @@ class JointLimits(Constraint):
     all 1-DoF joints), sampled on the constraint grid. Inequalities."""
 
     kind = "ineq"
+    ddp = "path"
 
     def __init__(self, joints=None, position=True, velocity=True, stage=0, name=None):
         self.joints, self.position, self.velocity = joints, position, velocity
@@ -160,6 +181,7 @@ class TorqueLimits(Constraint):
     `cstorm.report.torque_check` reads agrees."""
 
     kind = "ineq"
+    ddp = "box"
 
     def __init__(self, limits=None, joints=None, stage=0, name=None, factor=1.0, normalized=False, dense=False,
                  rho=200.0):
@@ -182,6 +204,26 @@ class TorqueLimits(Constraint):
     @property
     def uses_steps(self):
         return self.dense
+
+    def control_bounds(self, problem, params):
+        """``(lb, ub)``, each (N+1, n_active) N m: the limits as bounds on the DDP's
+        motor-torque controls (``-inf``/``inf`` for active joints this term does not
+        limit). Raises `ProblemError` if the term limits a passive DoF."""
+        va = list(problem.layout.va_idx)
+        bad = [int(i) for i in self._idx if int(i) not in va]
+        if bad:
+            names = [n for n in problem.model.joint_names
+                     if set(range(problem.model.joint_v(n).start, problem.model.joint_v(n).stop)) & set(bad)]
+            raise ProblemError(f"TorqueLimits: method='ddp' bounds motor torques, and {names} are passive")
+        lim = np.asarray(problem.model.effort_limit)[self._idx] if self.limits is None else \
+            np.broadcast_to(np.asarray(resolve(self.limits, params), float), (len(self._idx),))
+        f = float(np.asarray(resolve(self.factor, params)))
+        n = problem.n_steps + 1
+        lb, ub = np.full((n, len(va)), -np.inf), np.full((n, len(va)), np.inf)
+        for i, lim_i in zip(self._idx, lim):
+            k = va.index(int(i))
+            lb[:, k], ub[:, k] = -f * lim_i, f * lim_i
+        return lb, ub
 
     def ratios(self, samples, lim):
         """``(hi, lo)``, each ``(S, k)``: per sample the largest ``tau/lim`` and ``-tau/lim``
@@ -227,6 +269,8 @@ class TerminalState(Constraint):
     ``v(T) = v``, ``a(T) = a``. ``kind="ineq"`` with ``tol``: ``|error| <= tol``
     componentwise. Values (and ``tol``) may name problem parameters. Order of the values:
     position, velocity, acceleration parts (those given)."""
+
+    ddp = "end"
 
     def __init__(self, joint, q=None, v=None, a=None, kind="eq", tol=0.0, stage=0, name=None):
         self.joint, self.q, self.v, self.a, self.tol = joint, q, v, a, tol
@@ -288,6 +332,7 @@ class ContactDistance(Constraint):
     ``max_distance`` gives the upper bound alone."""
 
     kind = "ineq"
+    ddp = "path"
 
     def __init__(self, min_distance=None, window=None, geoms=None, stage=0, name=None, max_distance=None):
         if min_distance is None and max_distance is None:
@@ -336,6 +381,21 @@ class ContactDistance(Constraint):
         if self.max_distance is not None:
             out.append((resolve(self.max_distance, ctx.params) - d).ravel())
         return jnp.concatenate(out)
+
+    def point_values(self, ctx, point):
+        d = point["contact"].d[self._pts]
+        out = []
+        if self.min_distance is not None:
+            out.append(d - resolve(self.min_distance, ctx.params))
+        if self.max_distance is not None:
+            out.append(resolve(self.max_distance, ctx.params) - d)
+        return jnp.concatenate(out)
+
+    def node_mask(self, problem):
+        t = np.asarray(problem.t)
+        if self.window is None:
+            return np.ones(len(t), bool)
+        return (t >= self.window[0] - 1e-12) & (t <= self.window[1] + 1e-12)
 
     def label(self):
         return self.name or "ContactDistance"
@@ -422,6 +482,8 @@ class AverageSpeed(Constraint):
     parameter, so continuation can ramp it). ``kind="eq"`` (default) or ``"ineq"`` (at
     least ``speed``). One value, m/s."""
 
+    ddp = "end"
+
     def __init__(self, speed, joint="root_x", kind="eq", stage=0, name=None):
         self.speed, self.joint = speed, joint
         _set_common(self, kind, stage, name)
@@ -451,6 +513,8 @@ class TerminalConstraint(Constraint):
     """User terminal constraint ``fn(q, v, params) -> (k,)`` at ``t_final`` (``= 0`` for
     ``kind="eq"``, ``>= 0`` for ``"ineq"``)."""
 
+    ddp = "end"
+
     def __init__(self, fn, kind="eq", stage=0, name=None):
         self.fn = fn
         _set_common(self, kind, stage, name)
@@ -462,6 +526,8 @@ class TerminalConstraint(Constraint):
 class PathConstraint(Constraint):
     """User path constraint ``fn(t, q, v, a, tau, params) -> (k,)`` evaluated (vmapped) at
     every sample of the constraint grid (``>= 0`` by default; ``kind="eq"`` for ``= 0``)."""
+
+    ddp = "path"
 
     def __init__(self, fn, kind="ineq", stage=0, name=None):
         self.fn = fn

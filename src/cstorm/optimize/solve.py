@@ -173,7 +173,7 @@ def _plan(problem, continuation, schedule):
     return [({}, 0)]
 
 
-METHODS = ("slsqp", "trust-constr", "ipopt")
+METHODS = ("slsqp", "trust-constr", "ipopt", "ddp")
 
 
 def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedule=None, max_iter: int = 500,
@@ -252,6 +252,12 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     method = method.lower()
     if method not in METHODS:
         raise InputError(f"solve: method must be one of {list(METHODS)}, got {method!r}")
+    if method == "ddp":
+        from .ddp_problem import solve_ddp
+
+        return solve_ddp(problem, q0=q0, v0=v0, max_iter=max_iter, tol=tol,
+                         constraint_tol=constraint_tol, verbose=verbose, callback=callback, out=out,
+                         options=options)
     if continuation is None and schedule is None:
         continuation = problem.solve_options.get("continuation")
         schedule = problem.solve_options.get("schedule")

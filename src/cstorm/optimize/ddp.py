@@ -1,0 +1,520 @@
+"""Constrained feasibility-driven DDP: FDDP (Mastalli et al. 2020) with control boxes in
+the backward pass (Tassa, Mansard & Todorov 2014, as Crocoddyl's BoxFDDP) and an
+augmented-Lagrangian outer loop for equality and inequality constraints (as ALTRO,
+Howell et al. 2019). The solver works on an `OCP`, a discrete optimal control problem
+given as pure JAX functions; `cstorm.optimize.ddp_problem` builds one from a
+`MotionProblem`.
+
+Problem (nodes ``k = 0..N``, ``N = n_steps``)::
+
+    min   sum_k  cost(y_k, k)  +  AL penalties of c_eq(y_k, k) = 0, c_in(y_k, k) >= 0
+    s.t.  x_{k+1} = step(x_k, u_k, k)          k = 0..N-1
+          x_0 fixed,  lb_k <= u_k <= ub_k      k = 0..N
+          y_k = point(x_k, u_k, k)             (what cost and constraints read)
+
+Every node has a control; node ``N``'s control enters no dynamics, only the terminal
+point ``y_N`` (e.g. the motor torques that hold the final posture). States live on a
+manifold: ``integrate(x, dx)`` and ``difference(x0, x1)`` (``x1 = x0 (+) dx``) map
+between an ambient state ``x`` (n_xa,) and tangents ``dx`` (nx,).
+
+One iteration
+-------------
+1. *Linearize* every node at once (``vmap`` of ``jacfwd``): ``A_k = d x_{k+1}/d x_k``,
+   ``B_k = d x_{k+1}/d u_k`` in tangent coordinates, and ``J_k = d y_k / d(x_k, u_k)``.
+   Cost and constraint derivatives follow from ``J_k`` by the chain rule; their
+   Hessians by Gauss-Newton (``J^T H_y J`` with ``H_y`` the cost's exact Hessian in
+   ``y`` and the penalties' ``mu`` on active rows), so no second derivative of the
+   dynamics is ever formed.
+2. *Backward pass* (``lax.scan`` from ``N`` to ``0``): the Riccati recursion with the
+   gaps ``f_k`` of the current iterate (FDDP: ``V_x' = V_x + V_xx f``), the state
+   regularization ``V_xx + rho I`` and control regularization ``Q_uu + rho I``; the
+   control step is the box-constrained QP ``min 1/2 du' Q_uu du + Q_u' du`` s.t. the
+   box, solved by projected Newton; the feedback gains act on the free controls only.
+3. *Forward pass with feedback* and a backtracking line search over ``alpha``:
+   ``x^_k = f(x^_{k-1}, u^_{k-1}) (+) (alpha - 1) f_k`` (the gaps shrink by
+   ``1 - alpha``), ``u^_k = clip(u_k + alpha k_k + K_k (x^_k (-) x_k))``. While gaps
+   remain, a step is accepted when its rollout stays finite (FDDP); once the iterate is
+   dynamically feasible, by the Armijo test on the merit (cost plus penalties) against
+   the quadratic model's prediction. A failed search or a failed factorization raises
+   ``rho`` tenfold; a full step lowers it.
+
+Outer loop: after each inner solve (stationarity below a tolerance that tightens with
+the constraint violation, or an iteration cap), the multipliers take their first-order
+update (``lambda_eq += mu c``, ``lambda_in = max(0, lambda_in - mu c)``) and every row
+whose violation did not fall below a quarter of its last value gets a tenfold ``mu``.
+The rules and constants are the solver's, the same for every problem.
+
+Compiled once per problem shape: the iterate, multipliers, penalties, ``alpha`` and
+``rho`` are dynamic arguments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+
+__all__ = ["OCP", "DDPOptions", "DDPResult", "solve_ocp"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OCP:
+    """A discrete optimal control problem for `solve_ocp` (see the module docstring).
+
+    Attributes:
+      n_steps: ``N``. nx: tangent dimension of the state. nu: controls per node.
+      n_eq, n_in: equality / inequality rows per node (the same at every node; rows a
+        node does not enforce are masked out by ``mask_eq`` / ``mask_in``).
+      integrate: ``(x, dx) -> x``. difference: ``(x0, x1) -> dx`` with ``x1 = x0 (+) dx``.
+      step: ``(x, u, k, data) -> (x_next, y)``: one integration step and the node's
+        point ``y`` (a flat (n_y,) array), the same as ``point(x, u, k, data)``.
+      point: ``(x, u, k, data) -> y``.
+      cost: ``(y, k, data) -> scalar`` (node ``k``'s share of the objective).
+      constraints: ``(y, k, data) -> (c_eq (n_eq,), c_in (n_in,))``.
+      mask_eq, mask_in: (N+1, n_eq) / (N+1, n_in) bool host arrays: which rows each node
+        enforces.
+      x_bad: ``(x) -> bool``: a state the rollout must not pass (non-finite or beyond
+        bounds); the rollout freezes there and the trial point is rejected.
+    """
+
+    n_steps: int
+    nx: int
+    nu: int
+    n_eq: int
+    n_in: int
+    integrate: Callable
+    difference: Callable
+    step: Callable
+    point: Callable
+    cost: Callable
+    constraints: Callable
+    mask_eq: np.ndarray
+    mask_in: np.ndarray
+    x_bad: Callable
+
+
+@dataclasses.dataclass
+class DDPOptions:
+    """Solver settings (the defaults are used for every problem).
+
+    max_iter: DDP iterations in all (outer loops included). tol: stationarity tolerance
+    (the model's predicted merit decrease of a full step, relative to ``1 + |merit|``).
+    constraint_tol: largest constraint violation accepted (units of the rows). gap_tol:
+    largest dynamics gap (tangent norm) of a feasible iterate. mu0: initial penalty.
+    mu_max: largest penalty. reg0, reg_min, reg_max: regularization. alpha_min: the
+    shortest line-search step. verbose: print one line per iteration.
+    """
+
+    max_iter: int = 500
+    tol: float = 1e-9
+    constraint_tol: float = 1e-6
+    gap_tol: float = 1e-9
+    mu0: float = 10.0
+    mu_max: float = 1e10
+    reg0: float = 1e-9
+    reg_min: float = 1e-9
+    reg_max: float = 1e9
+    alpha_min: float = 2.0 ** -12
+    armijo: float = 0.1
+    inner_max_iter: int = 60
+    verbose: bool = False
+
+
+@dataclasses.dataclass
+class DDPResult:
+    """What `solve_ocp` returns: ``X`` (N+1, n_xa) states, ``U`` (N+1, nu) controls,
+    ``Y`` (N+1, n_y) points, ``cost`` (objective without penalties), ``violation`` (max
+    constraint violation over enforced rows), ``gap`` (max dynamics gap), ``converged``,
+    ``status`` (a short reason: "converged", "max_iter", "line_search", "interrupted",
+    "diverged"), ``iterations``, ``history`` (per-iteration dicts), ``lam_eq``,
+    ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    Y: np.ndarray
+    cost: float
+    violation: float
+    gap: float
+    converged: bool
+    status: str
+    iterations: int
+    history: list
+    lam_eq: np.ndarray
+    lam_in: np.ndarray
+    mu_eq: np.ndarray
+    mu_in: np.ndarray
+
+
+# ---------------------------------------------------------------------------------------
+# Per-node merit: cost plus augmented-Lagrangian penalties
+# ---------------------------------------------------------------------------------------
+def _penalty(ce, ci, me, mi, le, li, mue, mui):
+    """Augmented-Lagrangian penalty of one node (PHR form for the inequalities):
+    ``sum_eq (l c + mu/2 c^2) + sum_in ((max(0, l - mu c))^2 - l^2) / (2 mu)``, masked."""
+    pe = jnp.sum(jnp.where(me, le * ce + 0.5 * mue * ce * ce, 0.0))
+    s = jnp.maximum(0.0, li - mui * ci)
+    pi = jnp.sum(jnp.where(mi, (s * s - li * li) / (2.0 * mui), 0.0))
+    return pe + pi
+
+
+def _violation(ce, ci, me, mi):
+    """Per-row violation: ``|c_eq|`` and ``max(0, -c_in)`` (0 on masked rows)."""
+    return jnp.where(me, jnp.abs(ce), 0.0), jnp.where(mi, jnp.maximum(0.0, -ci), 0.0)
+
+
+class _Compiled:
+    """The compiled pieces of one `OCP`: evaluation, linearization, backward pass and
+    forward pass (one XLA compile each per problem shape)."""
+
+    def __init__(self, ocp: OCP):
+        self.ocp = ocp
+        self.evaluate = jax.jit(self._evaluate)
+        self.linearize = jax.jit(self._linearize)
+        self.backward = jax.jit(self._backward)
+        self.forward = jax.jit(self._forward)
+
+    # -- evaluation of a trajectory --------------------------------------------------
+    def _node_terms(self, Y, data, al):
+        o = self.ocp
+        ks = jnp.arange(o.n_steps + 1)
+        cost = jax.vmap(lambda y, k: o.cost(y, k, data))(Y, ks)
+        ce, ci = jax.vmap(lambda y, k: o.constraints(y, k, data))(Y, ks)
+        me, mi = jnp.asarray(o.mask_eq), jnp.asarray(o.mask_in)
+        pen = jax.vmap(_penalty)(ce, ci, me, mi, al["lam_eq"], al["lam_in"], al["mu_eq"], al["mu_in"])
+        ve, vi = _violation(ce, ci, me, mi)
+        return cost, pen, ce, ci, ve, vi
+
+    def _evaluate(self, X, U, data, al):
+        """Values of an iterate: ``dict(cost, merit, ve, vi (per-row violations), gaps
+        (N+1, nx), Y)``."""
+        o = self.ocp
+        ks = jnp.arange(o.n_steps)
+        Xn, Yh = jax.vmap(lambda x, u, k: o.step(x, u, k, data))(X[:-1], U[:-1], ks)
+        yN = o.point(X[-1], U[-1], o.n_steps, data)
+        Y = jnp.concatenate([Yh, yN[None]])
+        gaps = jax.vmap(o.difference)(X[1:], Xn)
+        gaps = jnp.concatenate([jnp.zeros((1, o.nx), X.dtype), gaps])
+        cost, pen, ce, ci, ve, vi = self._node_terms(Y, data, al)
+        return dict(cost=jnp.sum(cost), merit=jnp.sum(cost) + jnp.sum(pen), ve=ve, vi=vi, ce=ce, ci=ci,
+                    gaps=gaps, Y=Y)
+
+    # -- linearization -------------------------------------------------------------------
+    def _linearize(self, X, U, data, al):
+        """Derivatives of every node: dynamics ``A (N, nx, nx)``, ``B (N, nx, nu)``, gaps
+        ``(N+1, nx)`` and the merit's gradient and Gauss-Newton Hessian blocks ``lx, lu,
+        lxx, luu, lux``."""
+        o = self.ocp
+        nx, nu = o.nx, o.nu
+        N = o.n_steps
+
+        def node(x, u, xn_ref, k):
+            def f(z):
+                xx = o.integrate(x, z[:nx])
+                xn, y = o.step(xx, z[nx:], k, data)
+                return o.difference(xn_ref, xn), y
+
+            z0 = jnp.concatenate([jnp.zeros(nx, x.dtype), u])
+            (dxn, y), (Jx, Jy) = jax.jvp(f, (z0,), (jnp.eye(nx + nu, dtype=x.dtype),)) if False else \
+                (f(z0), jax.jacfwd(f)(z0))
+            return dxn, y, Jx, Jy
+
+        ks = jnp.arange(N)
+        gaps, Yh, Jn, JYh = jax.vmap(node)(X[:-1], U[:-1], X[1:], ks)
+
+        def last(z):
+            return o.point(o.integrate(X[-1], z[:nx]), z[nx:], N, data)
+
+        zN = jnp.concatenate([jnp.zeros(nx, X.dtype), U[-1]])
+        yN, JyN = last(zN), jax.jacfwd(last)(zN)
+        Y = jnp.concatenate([Yh, yN[None]])
+        JY = jnp.concatenate([JYh, JyN[None]])
+        me, mi = jnp.asarray(o.mask_eq), jnp.asarray(o.mask_in)
+
+        def merit_derivs(y, J, k, me_, mi_, le, li, mue, mui):
+            lf = lambda yy: o.cost(yy, k, data)
+            cf = lambda yy: o.constraints(yy, k, data)
+            gy = jax.grad(lf)(y)
+            HJ = jax.vmap(lambda t: jax.jvp(jax.grad(lf), (y,), (t,))[1], in_axes=1, out_axes=1)(J)
+            H = J.T @ HJ
+            (ce, ci), (Je, Ji) = cf(y), jax.vmap(lambda t: jax.jvp(cf, (y,), (t,))[1], in_axes=1, out_axes=1)(J)
+            # penalty gradient and Gauss-Newton Hessian in z = (dx, u)
+            we = jnp.where(me_, le + mue * ce, 0.0)
+            act = mi_ & (li - mui * ci > 0)
+            wi = jnp.where(act, -(li - mui * ci), 0.0)
+            g = J.T @ gy + Je.T @ we + Ji.T @ wi
+            H = H + Je.T @ (jnp.where(me_, mue, 0.0)[:, None] * Je) + Ji.T @ (jnp.where(act, mui, 0.0)[:, None] * Ji)
+            return g, 0.5 * (H + H.T)
+
+        g, H = jax.vmap(merit_derivs)(Y, JY, jnp.arange(N + 1), me, mi, al["lam_eq"], al["lam_in"], al["mu_eq"],
+                                       al["mu_in"])
+        gaps = jnp.concatenate([jnp.zeros((1, nx), X.dtype), -gaps])  # f_{k+1} = x_{k+1} (-) f(x_k, u_k), sign below
+        return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=-gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
+                    luu=H[:, nx:, nx:], lux=H[:, nx:, :nx])
+
+    # -- backward pass -------------------------------------------------------------------
+    def _backward(self, lin, U, lb, ub, reg):
+        """Riccati recursion with gaps and control boxes. Returns ``k (N+1, nu), K (N+1,
+        nu, nx)``, the model terms ``d1 = sum Q_u k``, ``d2 = sum k' Q_uu k`` and ``ok``
+        (every factorization succeeded)."""
+        o = self.ocp
+        nx, nu = o.nx, o.nu
+        eye_x, eye_u = jnp.eye(nx), jnp.eye(nu)
+        A = jnp.concatenate([lin["A"], jnp.zeros((1, nx, nx))])
+        B = jnp.concatenate([lin["B"], jnp.zeros((1, nx, nu))])
+        # f_{k+1} as seen from node k: the gap of node k+1 (node N has none after it)
+        fn = jnp.concatenate([lin["gaps"][1:], jnp.zeros((1, nx))])
+        xs = (A, B, fn, lin["lx"], lin["lu"], lin["lxx"], lin["luu"], lin["lux"], U, lb, ub)
+
+        def body(carry, z):
+            Vx, Vxx = carry
+            A_, B_, f_, lx, lu, lxx, luu, lux, u, lo, hi = z
+            Vxr = Vxx + reg * eye_x
+            Vx1 = Vx + Vxx @ f_  # FDDP: the value gradient at the end of the gap
+            Qx = lx + A_.T @ Vx1
+            Qu = lu + B_.T @ Vx1
+            Qxx = lxx + A_.T @ Vxr @ A_
+            Quu = luu + B_.T @ Vxr @ B_ + reg * eye_u
+            Qux = lux + B_.T @ Vxr @ A_
+            Quu = 0.5 * (Quu + Quu.T)
+            du, K_, free, ok = _box_qp(Quu, Qu, Qux, lo - u, hi - u)
+            Vx_n = Qx + K_.T @ Quu @ du + K_.T @ Qu + Qux.T @ du
+            Vxx_n = Qxx + K_.T @ Quu @ K_ + K_.T @ Qux + Qux.T @ K_
+            Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
+            return (Vx_n, Vxx_n), (du, K_, Qu @ du, du @ Quu @ du, ok, Vx_n, Vxx_n)
+
+        init = (jnp.zeros(nx), jnp.zeros((nx, nx)))
+        _, (k, K, d1, d2, ok, Vx, Vxx) = jax.lax.scan(body, init, xs, reverse=True)
+        ok = jnp.all(ok) & jnp.all(jnp.isfinite(k)) & jnp.all(jnp.isfinite(K))
+        # the gap terms of the predicted change (FDDP): sum_k Vx_k . f_k and f_k' Vxx_k f_k
+        f = lin["gaps"]
+        dg = jnp.sum(jnp.einsum("ki,ki->k", Vx, f))
+        dq = jnp.sum(jnp.einsum("ki,kij,kj->k", f, Vxx, f))
+        return dict(k=k, K=K, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok)
+
+    # -- forward pass --------------------------------------------------------------------
+    def _forward(self, X, U, k, K, gaps, alpha, lb, ub, data, al):
+        """Rollout with feedback at step ``alpha``: the new ``(X, U)`` and its values
+        (as `_evaluate`), with ``bad`` (the rollout left the valid states)."""
+        o = self.ocp
+
+        def body(carry, z):
+            xpred, bad = carry
+            x_ref, u_ref, kk, KK, f, lo, hi, i = z
+            x = o.integrate(xpred, (alpha - 1.0) * f)
+            dx = o.difference(x_ref, x)
+            u = jnp.clip(u_ref + alpha * kk + KK @ dx, lo, hi)
+            xn, y = o.step(x, u, i, data)
+            nbad = bad | o.x_bad(xn)
+            xn = jnp.where(nbad, x, xn)  # frozen once bad: nothing downstream turns NaN
+            return (xn, nbad), (x, u, y)
+
+        N = o.n_steps
+        xs = (X[:-1], U[:-1], k[:-1], K[:-1], gaps[:-1], lb[:-1], ub[:-1], jnp.arange(N))
+        (xpred, bad), (Xn, Un, Yh) = jax.lax.scan(body, (X[0], jnp.zeros((), bool)), xs)
+        xN = o.integrate(xpred, (alpha - 1.0) * gaps[-1])
+        uN = jnp.clip(U[-1] + alpha * k[-1] + K[-1] @ o.difference(X[-1], xN), lb[-1], ub[-1])
+        yN = o.point(xN, uN, N, data)
+        Xn = jnp.concatenate([Xn, xN[None]])
+        Un = jnp.concatenate([Un, uN[None]])
+        Y = jnp.concatenate([Yh, yN[None]])
+        cost, pen, ce, ci, ve, vi = self._node_terms(Y, data, al)
+        bad = bad | ~jnp.all(jnp.isfinite(Y)) | ~jnp.isfinite(jnp.sum(cost) + jnp.sum(pen))
+        # the gaps left: (1 - alpha) of the old ones (exactly, up to the transport)
+        return dict(X=Xn, U=Un, Y=Y, cost=jnp.sum(cost), merit=jnp.sum(cost) + jnp.sum(pen), ve=ve, vi=vi,
+                    ce=ce, ci=ci, gaps=(1.0 - alpha) * gaps, bad=bad)
+
+
+def _box_qp(H, g, Hux, lo, hi, n_iter=12):
+    """``min 1/2 du' H du + g' du`` s.t. ``lo <= du <= hi`` (projected Newton with a
+    backtracking search, a fixed number of iterations), and the feedback gain ``K = -H_ff^-1
+    H_ux`` on the free rows (zero on rows clamped at a bound). ``H`` (nu, nu) positive
+    definite; infinite bounds allowed. Returns ``(du, K, free, ok)``."""
+    nu = g.shape[0]
+    eye = jnp.eye(nu, dtype=g.dtype)
+    L = jnp.linalg.cholesky(H)
+    ok = jnp.all(jnp.isfinite(L))
+    sol = lambda M, b: jax.scipy.linalg.cho_solve((M, True), b)
+    du0 = jnp.clip(-sol(L, g), lo, hi)
+    q = lambda d: 0.5 * d @ H @ d + g @ d
+
+    def free_set(du):
+        grad = H @ du + g
+        clamped = ((du <= lo) & (grad > 0)) | ((du >= hi) & (grad < 0))
+        return ~clamped, grad
+
+    def body(_, du):
+        free, grad = free_set(du)
+        Hf = jnp.where(free[:, None] & free[None, :], H, eye)
+        d = jnp.where(free, jnp.linalg.solve(Hf, -jnp.where(free, grad, 0.0)), 0.0)
+        f0 = q(du)
+        best = du
+        found = jnp.zeros((), bool)
+        for s in (1.0, 0.5, 0.25, 0.125, 0.0625):
+            cand = jnp.clip(du + s * d, lo, hi)
+            better = (~found) & (q(cand) < f0 - 1e-14 * jnp.abs(f0))
+            best = jnp.where(better, cand, best)
+            found = found | better
+        return best
+
+    has_box = jnp.any(jnp.isfinite(lo) | jnp.isfinite(hi))
+    du = jax.lax.cond(has_box, lambda d: jax.lax.fori_loop(0, n_iter, body, d), lambda d: d, du0)
+    free, _ = free_set(du)
+    Hf = jnp.where(free[:, None] & free[None, :], H, eye)
+    K = jnp.where(free[:, None], -jnp.linalg.solve(Hf, jnp.where(free[:, None], Hux, 0.0)), 0.0)
+    return du, K, free, ok
+
+
+# ---------------------------------------------------------------------------------------
+# The solver loop
+# ---------------------------------------------------------------------------------------
+def _max(a):
+    a = np.asarray(a)
+    return float(a.max()) if a.size else 0.0
+
+
+def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None, *, compiled=None, callback=None,
+              log=print):
+    """Solve ``ocp`` from the (possibly infeasible) iterate ``X0`` (N+1, n_xa), ``U0``
+    (N+1, nu); ``X0[0]`` is the fixed initial state. ``lb``, ``ub``: (N+1, nu) control
+    bounds (``+-inf`` where unbounded). ``data``: the dynamic inputs of the OCP's
+    functions. ``compiled``: a `_Compiled` of this OCP to reuse (`compile_ocp`).
+    ``callback(info)``: called after every iteration with its history entry; raising
+    KeyboardInterrupt stops the solve, which returns the best iterate so far. Returns
+    `DDPResult`."""
+    opt = options or DDPOptions()
+    C = compiled or _Compiled(ocp)
+    N = ocp.n_steps
+    X = jnp.asarray(X0, jnp.float64)
+    U = jnp.asarray(U0, jnp.float64)
+    lb, ub = jnp.asarray(lb, jnp.float64), jnp.asarray(ub, jnp.float64)
+    U = jnp.clip(U, lb, ub)
+    al = dict(lam_eq=jnp.zeros((N + 1, ocp.n_eq)), lam_in=jnp.zeros((N + 1, ocp.n_in)),
+              mu_eq=jnp.full((N + 1, ocp.n_eq), opt.mu0), mu_in=jnp.full((N + 1, ocp.n_in), opt.mu0))
+    t0 = time.perf_counter()
+    ev = C.evaluate(X, U, data, al)
+    gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
+    feasible = gap <= opt.gap_tol
+    reg = opt.reg0
+    history = []
+    status, it, converged = "max_iter", 0, False
+    best = None
+    viol_prev = max(_max(ev["ve"]), _max(ev["vi"]))
+    row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
+    inner = 0
+    if opt.verbose:
+        log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
+            f"{'time':>7}")
+    try:
+        while it < opt.max_iter:
+            lin = C.linearize(X, U, data, al)
+            bw = C.backward(lin, U, lb, ub, reg)
+            if not bool(bw["ok"]):
+                reg *= 10.0
+                if reg > opt.reg_max:
+                    status = "regularization"
+                    break
+                continue
+            d1, d2 = float(bw["d1"]), float(bw["d2"])
+            merit = float(ev["merit"])
+            stat = -d1 / (1.0 + abs(merit))
+            viol = max(_max(ev["ve"]), _max(ev["vi"]))
+            inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
+            if feasible and (stat <= inner_tol or inner >= opt.inner_max_iter):
+                if viol <= opt.constraint_tol and stat <= opt.tol:
+                    status, converged = "converged", True
+                    break
+                if viol <= opt.constraint_tol and inner >= opt.inner_max_iter and stat <= 1e3 * opt.tol:
+                    status, converged = "converged", True
+                    break
+                # outer update: multipliers, and penalties of rows that did not improve
+                al = _update_al(al, ev, ocp, opt, row_prev)
+                row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
+                viol_prev = viol
+                inner = 0
+                ev = C.evaluate(X, U, data, al)
+                continue
+            # line search
+            alpha, accepted = 1.0, None
+            while alpha >= opt.alpha_min:
+                tr = C.forward(X, U, bw["k"], bw["K"], lin["gaps"], alpha, lb, ub, data, al)
+                if not bool(tr["bad"]):
+                    dm = float(tr["merit"]) - merit
+                    pred = alpha * d1 + 0.5 * alpha * alpha * d2
+                    if not feasible or dm <= opt.armijo * pred or (pred > -1e-14 * (1 + abs(merit)) and dm <= 0):
+                        accepted = tr
+                        break
+                alpha *= 0.5
+            it += 1
+            inner += 1
+            if accepted is None:
+                reg *= 10.0
+                step = 0.0
+                if reg > opt.reg_max:
+                    status = "line_search"
+                    break
+            else:
+                X, U = accepted["X"], accepted["U"]
+                gap_new = float(jnp.max(jnp.linalg.norm(accepted["gaps"], axis=1)))
+                ev = dict(accepted)
+                feasible = feasible or gap_new <= opt.gap_tol or alpha == 1.0
+                step = alpha
+                if alpha == 1.0:
+                    reg = max(opt.reg_min, reg / 10.0)
+                elif alpha < 0.1:
+                    reg = min(opt.reg_max, reg * 10.0)
+            gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1))) if not feasible else 0.0
+            viol = max(_max(ev["ve"]), _max(ev["vi"]))
+            entry = dict(iteration=it, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol, gap=gap,
+                         reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0)
+            history.append(entry)
+            if feasible and (best is None or _better(entry, best[0], opt)):
+                best = (entry, X, U)
+            if opt.verbose:
+                log(f"{it:5d} {entry['cost']:13.6e} {entry['merit']:13.6e} {viol:9.2e} {gap:9.2e} {reg:8.1e} "
+                    f"{step:8.2e} {stat:9.2e} {entry['time']:7.2f}")
+            if callback is not None:
+                callback(entry)
+    except KeyboardInterrupt:
+        status = "interrupted"
+        if best is not None:
+            _, X, U = best
+    ev = C.evaluate(X, U, data, al)
+    gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
+    viol = max(_max(ev["ve"]), _max(ev["vi"]))
+    return DDPResult(X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
+                     violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
+                     status=status, iterations=it, history=history, lam_eq=np.asarray(al["lam_eq"]),
+                     lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]))
+
+
+def _better(a, b, opt):
+    """Is history entry ``a`` a better iterate than ``b`` (feasible first, then cost)?"""
+    fa, fb = a["violation"] <= opt.constraint_tol, b["violation"] <= opt.constraint_tol
+    if fa != fb:
+        return fa
+    return a["cost"] < b["cost"] if fa else a["violation"] < b["violation"]
+
+
+def _update_al(al, ev, ocp, opt, row_prev):
+    """The outer loop's first-order multiplier update and per-row penalty increase."""
+    ce, ci = ev["ce"], ev["ci"]
+    me, mi = jnp.asarray(ocp.mask_eq), jnp.asarray(ocp.mask_in)
+    lam_eq = jnp.where(me, al["lam_eq"] + al["mu_eq"] * ce, 0.0)
+    lam_in = jnp.where(mi, jnp.maximum(0.0, al["lam_in"] - al["mu_in"] * ci), 0.0)
+    ve, vi = np.asarray(ev["ve"]), np.asarray(ev["vi"])
+    pe, pi = row_prev
+    up_e = (ve > opt.constraint_tol) & (ve > 0.25 * pe)
+    up_i = (vi > opt.constraint_tol) & (vi > 0.25 * pi)
+    mu_eq = jnp.where(up_e, jnp.minimum(al["mu_eq"] * 10.0, opt.mu_max), al["mu_eq"])
+    mu_in = jnp.where(up_i, jnp.minimum(al["mu_in"] * 10.0, opt.mu_max), al["mu_in"])
+    return dict(lam_eq=lam_eq, lam_in=lam_in, mu_eq=mu_eq, mu_in=mu_in)
+
+
+def compile_ocp(ocp: OCP):
+    """The compiled functions of ``ocp`` (reuse across solves of the same shape)."""
+    return _Compiled(ocp)

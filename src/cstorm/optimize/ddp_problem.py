@@ -1,0 +1,508 @@
+"""A `MotionProblem` as a discrete optimal control problem for the DDP solver
+(`cstorm.optimize.ddp`): the same model, contact, costs and constraints, transcribed
+with one control per integration step.
+
+Transcription
+-------------
+- State ``x = (q (nq,), v (nv,))`` at the grid points ``t_k = k dt``, ``k = 0..N``
+  (the problem's grid); tangents ``dx = (dq (nv,), dv (nv,))``, ``q (+) dq`` on the
+  joints' groups (free joints on SE(3)).
+- Control ``u_k`` (n_active,): the active joints' motor torques (N m), held over the
+  step ``[t_k, t_k+1)``; every DoF's acceleration comes from forward dynamics (ABA, the
+  hybrid algorithm with every DoF passive) with the generalized forces
+  ``passive_forces(q, v) + S' u`` and the contact wrenches. Torques rather than
+  accelerations because the motor limits are then boxes on ``u`` (exact on every step,
+  in the backward pass) and the torque cost is quadratic in ``u``: its Hessian is exact,
+  not a Gauss-Newton model through the inverse dynamics. Node ``N`` has a control too:
+  the torques at ``t_final`` (the trajectory's last ``tau``, what ``end["a"]`` of a
+  terminal term is computed with).
+- Integrator: the problem's. ``"rk4"``: RK4 with the torque held over the step, free
+  joints by RKMK4 (as `cstorm.simulate`); ``"euler"``: semi-implicit Euler.
+- Objective: ``sum_{k<N} dt L(t_k, y_k) + Psi(y_N)`` (running terms by the rectangle
+  rule on the grid, which with RK4's held torque is exact for torque-only costs such as
+  `costs.TorqueSquared`), plus ``1e-9/2 |u_N|^2`` that keeps the terminal torques
+  defined when no term reads them (not part of the reported cost).
+- Constraints: each term says how DDP evaluates it (``Constraint.ddp``): ``"path"``
+  terms at every node (`Constraint.point_values`, within their time window),
+  ``"end"`` terms at node ``N`` (their ``values`` with the start state as the only
+  sample), ``"box"`` terms (`constraints.TorqueLimits`) as bounds on ``u`` at every
+  node. Terms that read the whole trajectory at once (``ddp = None``) are refused with
+  a `ProblemError` naming them.
+- Initial guess (`initial_guess`): the active joints follow the problem's initial
+  guess (its splines), the passive joints its ``node_guess`` (a state-level guess) or
+  rest at ``q0``; the controls are the torques that the hybrid dynamics needs along that
+  path. It is generally not dynamically consistent: FDDP starts from it with gaps and
+  closes them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
+
+from ..dynamics.configuration import difference as q_difference, integrate as q_integrate
+from ..dynamics.derivatives_fast import _hybrid_fast
+from ..dynamics.passive import passive_forces
+from ..errors import ProblemError
+from ..simulate import RolloutLayout, _dexpinv, _passive_exp
+from . import costs as _costs
+from .ddp import OCP
+from .problem import EvalContext
+
+__all__ = ["Transcription", "transcribe"]
+
+_U_REG = 1e-9
+
+
+@dataclasses.dataclass(eq=False)
+class Transcription:
+    """`transcribe`'s result: ``ocp`` (`ddp.OCP`), ``data`` (its dynamic inputs), ``lb``,
+    ``ub`` ((N+1, n_active) control bounds, N m), ``unravel`` (flat point -> dict ``q, v,
+    a, tau, contact``), ``eq_slices`` / ``in_slices`` (per constraint term: its label and
+    rows in a node's ``c_eq`` / ``c_in``)."""
+
+    problem: object
+    ocp: OCP
+    data: dict
+    lb: np.ndarray
+    ub: np.ndarray
+    unravel: object
+    eq_terms: list
+    in_terms: list
+
+    def initial_guess(self, data=None):
+        return initial_guess(self, data)
+
+    def trajectory(self, Y):
+        """Per-node points ``Y`` (N+1, n_y) -> dict ``t, q, v, a, tau`` (and ``contact``)
+        stacked over the grid (numpy)."""
+        pts = jax.vmap(self.unravel)(jnp.asarray(Y))
+        out = dict(t=np.asarray(self.problem.t), q=np.asarray(pts["q"]), v=np.asarray(pts["v"]),
+                   a=np.asarray(pts["a"]), tau=np.asarray(pts["tau"]))
+        if pts.get("contact") is not None:
+            out["contact"] = jax.tree_util.tree_map(np.asarray, pts["contact"])
+        return out
+
+
+def _dynamics(problem, layout_all, iva):
+    """``dyn(q, v, u, data) -> (a (nv,), tau (nv,), contact data)``: forward dynamics with
+    motor torques ``u`` on the active DoFs (``tau``: the trajectory's convention, motor
+    torques on active DoFs, spring/damper/limit forces on passive ones)."""
+    model0 = problem.model
+    nv = model0.nv
+    all_passive = (False,) * nv
+    cfn = problem._contact_fn
+
+    def dyn(q, v, u, data):
+        model = data["model"]
+        pf = passive_forces(model, q, v)
+        gen = pf.at[iva].add(u) if len(iva) else pf
+        if cfn is None:
+            _, a = _hybrid_fast(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, None)
+            cd = None
+        else:
+            from ..rollout_tangents import contact_hybrid
+
+            fn = lambda q_, v_: cfn(model, data.get("env"), data.get("contact"), q_, v_)
+            _, a, _, cd = contact_hybrid(model, fn, q, v, jnp.zeros(0, q.dtype), gen, all_passive)
+        tau = pf.at[iva].set(u) if len(iva) else pf
+        return a, tau, cd
+
+    return dyn
+
+
+def _stepper(problem, dyn, layout_all, ravel):
+    """``step(x, u, k, data) -> (x_next, y)`` and ``point(x, u, k, data) -> y``."""
+    model0 = problem.model
+    nq = model0.nq
+    h = problem.dt
+
+    def point(x, u, k, data):
+        q, v = x[:nq], x[nq:]
+        a, tau, cd = dyn(q, v, u, data)
+        return ravel(q, v, a, tau, cd)
+
+    if problem.integrator == "euler":
+        def step(x, u, k, data):
+            q, v = x[:nq], x[nq:]
+            a, tau, cd = dyn(q, v, u, data)
+            vn = v + h * a
+            qn = _passive_exp(model0, layout_all, q, h * vn)
+            return jnp.concatenate([qn, vn]), ravel(q, v, a, tau, cd)
+        return step, point
+
+    def step(x, u, k, data):
+        # RK4 / RKMK4 with the torque held; the four stages as a scan (the dynamics is
+        # traced once); the grid point's data (stage 0) rides in the carry
+        q, v = x[:nq], x[nq:]
+        dtype = x.dtype
+        cs = jnp.array([0.0, 0.5, 0.5, 1.0], dtype)
+        bs = jnp.array([1.0, 2.0, 2.0, 1.0], dtype) / 6.0
+        first = jnp.array([True, False, False, False])
+        y_shape = jax.eval_shape(lambda: point(x, u, k, data))
+
+        def stage(sc, z):
+            Kp, Wp, sK, sW, rec = sc
+            c, b, i0 = z
+            th = c * h * Kp
+            qi = _passive_exp(model0, layout_all, q, th)
+            vi = v + c * h * Wp
+            a, tau, cd = dyn(qi, vi, u, data)
+            Ki = _dexpinv(model0, layout_all, th, vi)
+            y = ravel(qi, vi, a, tau, cd)
+            rec = jnp.where(i0, y, rec)
+            return (Ki, a, sK + b * Ki, sW + b * a, rec), None
+
+        z0 = jnp.zeros_like(v)
+        rec0 = jnp.zeros(y_shape.shape, dtype)
+        (_, _, sK, sW, rec), _ = jax.lax.scan(stage, (z0, z0, z0, z0, rec0), (cs, bs, first))
+        qn = _passive_exp(model0, layout_all, q, h * sK)
+        vn = v + h * sW
+        return jnp.concatenate([qn, vn]), rec
+
+    return step, point
+
+
+def transcribe(problem) -> Transcription:
+    """The DDP transcription of ``problem`` (a `MotionProblem`; see the module
+    docstring). Raises `ProblemError` for what it cannot transcribe: free initial
+    states, multiple shooting, whole-trajectory constraint terms."""
+    p = problem
+    if p.free_initial:
+        raise ProblemError(f"{p.name}: method='ddp' starts from a fixed initial state; free_initial "
+                           f"({sorted(p.free_initial)}) needs method='slsqp'")
+    model0 = p.model
+    nq, nv = model0.nq, model0.nv
+    N = p.n_steps
+    layout = p.layout
+    iva = np.array(layout.va_idx, int)
+    nu = len(iva)
+    layout_all = RolloutLayout.make(model0, ())
+    dyn = _dynamics(p, layout_all, iva)
+    data = p.data()
+    data = {k: v for k, v in data.items() if k != "basis"}
+
+    # the flat point y: (q, v, a, tau, contact data) of one node
+    q0 = jnp.asarray(p.q0)
+    v0 = jnp.asarray(p.v0)
+    a_s, tau_s, cd_s = jax.eval_shape(lambda: dyn(q0, v0, jnp.zeros(nu), data))
+    template = dict(q=q0, v=v0, a=jnp.zeros(nv), tau=jnp.zeros(nv),
+                    contact=None if cd_s is None else jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype),
+                                                                            cd_s))
+    flat0, unravel = ravel_pytree(template)
+
+    def ravel(q, v, a, tau, cd):
+        return ravel_pytree(dict(q=q, v=v, a=a, tau=tau, contact=cd))[0]
+
+    step, point = _stepper(p, dyn, layout_all, ravel)
+
+    # --- constraint terms
+    ctx0 = EvalContext(p, model0, data["params"])
+    t_grid = np.asarray(p.t)
+    eq_terms, in_terms = [], []  # (term, where, n_rows, node mask (N+1,))
+    lb = np.full((N + 1, nu), -np.inf)
+    ub = np.full((N + 1, nu), np.inf)
+    pt0 = unravel(flat0)
+    end0 = dict(q=q0, v=v0, a=jnp.zeros(nv), tau=jnp.zeros(nv))
+    start0 = dict(t=jnp.zeros(1), q=q0[None], v=v0[None])
+    for c in list(p.constraints) + _boundary_terms(p):
+        how = getattr(c, "ddp", None)
+        if how == "box":
+            lo, hi = c.control_bounds(p, {k: np.asarray(v) for k, v in p.params.items()})
+            lb = np.maximum(lb, lo)
+            ub = np.minimum(ub, hi)
+            continue
+        if how == "path":
+            n = jax.eval_shape(lambda pt: jnp.atleast_1d(c.point_values(ctx0, dict(pt, t=jnp.zeros(()))))
+                               .ravel(), pt0).shape[0]
+            mask = np.asarray(c.node_mask(p), bool)
+        elif how == "end":
+            n = jax.eval_shape(lambda e: jnp.atleast_1d(c.values(ctx0, e, start0)).ravel(), end0).shape[0]
+            mask = np.zeros(N + 1, bool)
+            mask[N] = True
+        else:
+            raise ProblemError(
+                f"{p.name}: method='ddp' cannot use the constraint {c.label()!r} ({type(c).__name__}): it reads the "
+                "whole trajectory at once, and DDP takes terms evaluated at one instant ('path') or at the end "
+                "('end'); set its `ddp` attribute and `point_values` if it can be written per instant, or use "
+                "method='slsqp'")
+        (eq_terms if c.kind == "eq" else in_terms).append((c, how, n, mask))
+    if np.any(lb > ub):
+        raise ProblemError(f"{p.name}: the torque limits leave no admissible torque (lower > upper bound)")
+
+    def rows(terms):
+        n = sum(t[2] for t in terms)
+        M = np.zeros((N + 1, n), bool)
+        k = 0
+        for _, _, m, mask in terms:
+            M[:, k:k + m] = mask[:, None]
+            k += m
+        return n, M
+
+    n_eq, mask_eq = rows(eq_terms)
+    n_in, mask_in = rows(in_terms)
+
+    running = [c for c in p.costs if type(c).running is not _costs.Cost.running]
+    terminal = [c for c in p.costs if type(c).terminal is not _costs.Cost.terminal]
+    h = p.dt
+
+    def cost(y, k, data):
+        ctx = EvalContext(p, data["model"], data["params"])
+        pt = unravel(y)
+        t = k * h
+        L = jnp.zeros((), y.dtype)
+        for c in running:
+            r = c.running(ctx, t, pt["q"], pt["v"], pt["a"], pt["tau"], pt["contact"])
+            if r is not None:
+                L = L + r
+        out = jnp.where(k < N, h * L, 0.0)
+        if terminal:
+            end = dict(q=pt["q"], v=pt["v"], a=pt["a"], tau=pt["tau"])
+            T = jnp.zeros((), y.dtype)
+            for c in terminal:
+                r = c.terminal(ctx, end)
+                if r is not None:
+                    T = T + r
+            out = out + jnp.where(k == N, T, 0.0)
+        if nu:
+            ua = pt["tau"][iva]
+            out = out + jnp.where(k == N, 0.5 * _U_REG * jnp.sum(ua * ua), 0.0)
+        return out
+
+    def constraints(y, k, data):
+        ctx = EvalContext(p, data["model"], data["params"])
+        pt = dict(unravel(y), t=k * h)
+        end = dict(q=pt["q"], v=pt["v"], a=pt["a"], tau=pt["tau"])
+        start = dict(t=jnp.zeros(1), q=data["q0"][None], v=data["v0"][None])
+
+        def vals(terms):
+            out = []
+            for c, how, _, _ in terms:
+                v_ = c.point_values(ctx, pt) if how == "path" else c.values(ctx, end, start)
+                out.append(jnp.atleast_1d(v_).ravel())
+            return jnp.concatenate(out) if out else jnp.zeros(0, y.dtype)
+
+        return vals(eq_terms), vals(in_terms)
+
+    qb, vb = p.q_bound, p.v_bound
+
+    def x_bad(x):
+        return ~jnp.all(jnp.isfinite(x)) | jnp.any(jnp.abs(x[:nq]) > qb) | jnp.any(jnp.abs(x[nq:]) > vb)
+
+    def integrate(x, dx):
+        return jnp.concatenate([q_integrate(model0, x[:nq], dx[:nv]), x[nq:] + dx[nv:]])
+
+    def diff(x0, x1):
+        return jnp.concatenate([q_difference(model0, x0[:nq], x1[:nq]), x1[nq:] - x0[nq:]])
+
+    ocp = OCP(n_steps=N, nx=2 * nv, nu=nu, n_eq=n_eq, n_in=n_in, integrate=integrate, difference=diff, step=step,
+              point=point, cost=cost, constraints=constraints, mask_eq=mask_eq, mask_in=mask_in, x_bad=x_bad)
+    return Transcription(problem=p, ocp=ocp, data=data, lb=lb, ub=ub, unravel=unravel,
+                         eq_terms=[(c.label(), n) for c, _, n, _ in eq_terms],
+                         in_terms=[(c.label(), n) for c, _, n, _ in in_terms])
+
+
+class _ActiveBoundary:
+    """The active joints' boundary conditions, which the spline transcription imposes by
+    construction, as DDP equality rows: at the end, ``q_a = q_final_active``, ``v_a =
+    v_final_active`` (or 0 with ``rest_end``) and ``a_a = 0`` (``rest_end``); at the start
+    ``a_a = 0`` (``rest_start``). rad, rad/s, rad/s^2 (m for prismatic joints)."""
+
+    kind = "eq"
+
+    def __init__(self, problem, at_start):
+        lay = problem.layout
+        self.ia, self.iva = np.array(lay.qa_idx, int), np.array(lay.va_idx, int)
+        self.at_start = at_start
+        self.ddp = "path" if at_start else "end"
+        self.p = problem
+
+    def label(self):
+        return "active joints at the start" if self.at_start else "active joints at the end"
+
+    def node_mask(self, problem):
+        m = np.zeros(problem.n_steps + 1, bool)
+        m[0] = True
+        return m
+
+    def point_values(self, ctx, point):  # rest_start
+        return point["a"][self.iva]
+
+    def values(self, ctx, end, samples):
+        p, out = self.p, []
+        if p.qa_final is not None:
+            out.append(end["q"][self.ia] - jnp.asarray(p.qa_final))
+        if p.rest_end:
+            out += [end["v"][self.iva], end["a"][self.iva]]
+        elif p.va_final is not None:
+            out.append(end["v"][self.iva] - jnp.asarray(p.va_final))
+        return jnp.concatenate(out)
+
+
+def _boundary_terms(p):
+    out = []
+    if p.layout.n_active and (p.qa_final is not None or p.rest_end or p.va_final is not None):
+        out.append(_ActiveBoundary(p, at_start=False))
+    if p.layout.n_active and p.rest_start:
+        out.append(_ActiveBoundary(p, at_start=True))
+    return out
+
+
+def initial_guess(tr: Transcription, data=None):
+    """``(X0 (N+1, nq+nv), U0 (N+1, n_active))``: the posture-level guess (see the module
+    docstring). ``X0[0]`` is the problem's start state."""
+    p = tr.problem
+    model = p.model
+    nq, nv = model.nq, model.nv
+    N = p.n_steps
+    data = tr.data if data is None else data
+    full = p.data()
+    lay = p.layout
+    ia, iva = np.array(lay.qa_idx, int), np.array(lay.va_idx, int)
+    ctrl = np.asarray(p.ctrl(jnp.asarray(p.x0), full))
+    B = {k: np.asarray(v) for k, v in p._basis.items()}
+    qa, va, aa = B["B0"] @ ctrl, B["B1"] @ ctrl, B["B2"] @ ctrl
+    Q = np.tile(np.asarray(p.q0), (N + 1, 1))
+    V = np.zeros((N + 1, nv))
+    if p.node_guess is not None:
+        for k, t in enumerate(p.t):
+            qk, vk = (np.asarray(z, float).reshape(-1) for z in p.node_guess(float(t)))
+            Q[k], V[k] = qk, vk
+    if len(ia):
+        Q[:, ia], V[:, iva] = qa, va
+    Q[0], V[0] = p.q0, p.v0
+    U = np.asarray(_guess_torques(p, jnp.asarray(Q), jnp.asarray(V), jnp.asarray(aa), data))
+    return np.concatenate([Q, V], axis=1), U
+
+
+def tracking_gains(tr: Transcription, data=None, bandwidth=None):
+    """(N+1, n_active, 2 nv) feedback gains ``u = U + K (x (-) X)`` of a joint-space PD
+    law on the active joints, critically damped at ``bandwidth`` rad/s (default ``1 /
+    (20 dt)``: well inside what the step resolves): ``K_p = M_jj w^2``, ``K_d = 2 M_jj
+    w`` with ``M_jj`` the joint's diagonal inertia (armature included) at the start
+    configuration. The solver's first rollout uses them to follow the guess."""
+    from ..dynamics.crba import mass_matrix
+
+    p = tr.problem
+    data = tr.data if data is None else data
+    nv, N = p.model.nv, p.n_steps
+    iva = np.array(p.layout.va_idx, int)
+    w = 1.0 / (20.0 * p.dt) if bandwidth is None else float(bandwidth)
+    M = np.asarray(mass_matrix(data["model"], data["q0"]))
+    K = np.zeros((N + 1, len(iva), 2 * nv))
+    for j, i in enumerate(iva):
+        K[:, j, i] = -M[i, i] * w * w
+        K[:, j, nv + i] = -2.0 * M[i, i] * w
+    return K
+
+
+def _guess_torques(p, Q, V, AA, data):
+    """Motor torques (N+1, n_active) that give the active accelerations ``AA`` at the
+    states ``(Q, V)`` (hybrid dynamics with the passive DoFs' own forces and contact)."""
+    lay = p.layout
+    iva, ivp = np.array(lay.va_idx, int), np.array(lay.vp_idx, int)
+    cfn = p._contact_fn
+
+    def one(q, v, aa):
+        model = data["model"]
+        pf = passive_forces(model, q, v)
+        f_ext = None if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)[0]
+        tau_a, _ = _hybrid_fast(model, q, v, aa, pf[ivp], lay.active, f_ext)
+        return tau_a - pf[iva]
+
+    return jax.jit(jax.vmap(one))(Q, V, AA)
+
+
+def compiled_transcription(problem):
+    """The problem's transcription and compiled DDP functions, built once per problem
+    (``problem.compiled`` caches them under ``"ddp"``)."""
+    from .ddp import compile_ocp
+
+    cache = problem._compiled
+    if "ddp" not in cache:
+        tr = transcribe(problem)
+        cache["ddp"] = (tr, compile_ocp(tr.ocp))
+    return cache["ddp"]
+
+
+def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, constraint_tol=1e-6,
+              verbose=False, callback=None, out=None, options=None):
+    """Solve ``problem`` (a `MotionProblem`) by constrained FDDP (`cstorm.optimize.ddp`)
+    from the posture-level guess (`initial_guess`) or ``guess = (X0, U0)``; ``q0``, ``v0``:
+    another start state (a sequence's later segments). Returns a `Solution` whose
+    ``x`` is the controls ``U.ravel()`` ((N+1) n_active motor torques, N m) and whose
+    trajectory carries them as ``u`` (N+1, n_active)."""
+    import sys
+    import time
+
+    import jax.numpy as jnp
+
+    from .. import __version__ as _ver
+    from .ddp import DDPOptions, solve_ocp
+    from .solution import Solution
+
+    t0 = time.perf_counter()
+    tr, C = compiled_transcription(problem)
+    data = dict(tr.data)
+    if q0 is not None:
+        data["q0"] = jnp.asarray(q0, jnp.float64)
+    if v0 is not None:
+        data["v0"] = jnp.asarray(v0, jnp.float64)
+    X0, U0 = initial_guess(tr, data) if guess is None else (np.asarray(guess[0], float), np.asarray(guess[1], float))
+    X0 = np.array(X0)
+    X0[0] = np.concatenate([np.asarray(data["q0"]), np.asarray(data["v0"])])
+    opt = DDPOptions(max_iter=int(max_iter), tol=float(tol), constraint_tol=float(constraint_tol),
+                     verbose=bool(verbose), **(options or {}))
+    stream = out or sys.stdout
+    log = lambda s: print(s, file=stream, flush=True)
+    # compile (timed separately): one call of each compiled function
+    tc = time.perf_counter()
+    N, nu = problem.n_steps, tr.ocp.nu
+    al = dict(lam_eq=jnp.zeros((N + 1, tr.ocp.n_eq)), lam_in=jnp.zeros((N + 1, tr.ocp.n_in)),
+              mu_eq=jnp.ones((N + 1, tr.ocp.n_eq)), mu_in=jnp.ones((N + 1, tr.ocp.n_in)))
+    Xj, Uj = jnp.asarray(X0), jnp.clip(jnp.asarray(U0), tr.lb, tr.ub)
+    lin = C.linearize(Xj, Uj, data, al)
+    bw = C.backward(lin, Uj, jnp.asarray(tr.lb), jnp.asarray(tr.ub), 1e-9)
+    jax.block_until_ready(C.forward(Xj, Uj, bw["k"], bw["K"], lin["gaps"], 0.0, jnp.asarray(tr.lb),
+                                    jnp.asarray(tr.ub), data, al))
+    jax.block_until_ready(C.evaluate(Xj, Uj, data, al))
+    compile_s = time.perf_counter() - tc
+    if guess is None:
+        # the first iterate: the guess's torques with a PD law on the active joints that
+        # follows the guess's path (the passive DoFs move as the dynamics says): a
+        # dynamically consistent start near the guess
+        G = jnp.concatenate([jnp.zeros((1, tr.ocp.nx)), lin["gaps"][1:]])
+        r0 = C.forward(Xj, Uj, jnp.zeros_like(Uj), jnp.asarray(tracking_gains(tr, data)), lin["gaps"], 1.0,
+                       jnp.asarray(tr.lb), jnp.asarray(tr.ub), data, al)
+        if not bool(r0["bad"]):
+            X0, U0 = np.asarray(r0["X"]), np.asarray(r0["U"])
+    res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log)
+    traj = tr.trajectory(res.Y)
+    traj["u"] = np.asarray(res.U)
+    if traj.get("contact") is not None:
+        from .solve import _contact_dict
+        traj["contact"] = _contact_dict(traj["contact"])
+    success = res.converged and res.violation <= constraint_tol
+    message = {"converged": "converged", "max_iter": f"iteration limit ({max_iter}) reached",
+               "line_search": "no step decreased the merit at the largest regularization",
+               "regularization": "the backward pass failed at the largest regularization",
+               "interrupted": "interrupted by the user (KeyboardInterrupt); returning the best iterate so far"
+               }.get(res.status, res.status)
+    if res.status == "converged" and not success:
+        message += f"; but the constraint violation {res.violation:.3g} exceeds constraint_tol={constraint_tol:g}"
+    info = dict(method="ddp", controls="motor torques held over each step", max_iter=max_iter, tol=tol,
+                constraint_tol=constraint_tol, status=res.status, gap=res.gap, problem_hash=problem.hash(),
+                problem_description=problem.describe(), cstorm_version=_ver,
+                constraint_rows=dict(eq=tr.eq_terms, ineq=tr.in_terms))
+    sol = Solution(success=bool(success), message=message, cost=float(res.cost),
+                   constraint_violation=float(res.violation), iterations=res.iterations,
+                   x=np.asarray(res.U).ravel(), trajectory=traj, history=res.history, problem=problem.name,
+                   params={k: np.asarray(v).tolist() for k, v in problem.params.items()},
+                   wall_time_s=time.perf_counter() - t0, compile_time_s=compile_s, n_evaluations=res.iterations,
+                   info=info)
+    sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
+    return sol

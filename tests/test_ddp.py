@@ -1,0 +1,148 @@
+"""The constrained DDP solver (`cstorm.optimize.ddp`) and its transcription of a
+`MotionProblem` (`cstorm.optimize.ddp_problem`): the box QP against scipy, the step
+linearization against central finite differences, and the optimum against Crocoddyl's
+FDDP and BoxFDDP on a double pendulum discretized identically (same URDF, dt, integrator,
+per-step torque controls held over the step, cost)."""
+
+import os
+
+import numpy as np
+import pytest
+import jax
+import jax.numpy as jnp
+
+import cstorm as cs
+from cstorm.optimize import costs, constraints, ddp, ddp_problem
+from cstorm.optimize.problem import MotionProblem
+
+URDF = os.path.join(os.path.dirname(__file__), "..", "examples", "acrobot.urdf")
+T, DT = 1.0, 0.01
+N = int(round(T / DT))
+W_U, W_X = 1.0, 100.0
+TARGET = np.array([np.pi, 0.0])
+
+
+def test_box_qp_matches_scipy():
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        n = 1 + trial % 4
+        A = rng.normal(size=(n, n))
+        H = A @ A.T + 0.1 * np.eye(n)
+        g = rng.normal(size=n) * 3
+        lo, hi = -rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
+        if trial % 5 == 0:
+            lo[0], hi[0] = -np.inf, np.inf
+        du, K, free, ok = ddp._box_qp(jnp.asarray(H), jnp.asarray(g), jnp.zeros((n, 2)), jnp.asarray(lo),
+                                      jnp.asarray(hi))
+        ref = minimize(lambda d: 0.5 * d @ H @ d + g @ d, np.zeros(n), jac=lambda d: H @ d + g,
+                       bounds=list(zip(lo, hi)), method="L-BFGS-B", options=dict(ftol=1e-15, gtol=1e-12))
+        assert bool(ok)
+        np.testing.assert_allclose(np.asarray(du), ref.x, atol=1e-7)
+
+
+def _pendulum_problem(integrator, torque_limit=None):
+    model = cs.load_urdf(URDF)
+    cons = [] if torque_limit is None else [constraints.TorqueLimits(limits=torque_limit)]
+    return MotionProblem(
+        model, active=["shoulder", "elbow"], t_final=T, n_ctrl=8, dt=DT, q0=np.zeros(2), integrator=integrator,
+        costs=[costs.TorqueSquared(weight=W_U),
+               costs.StateTarget("shoulder", q=[TARGET[0]], v=[0.0], weight=W_X),
+               costs.StateTarget("elbow", q=[TARGET[1]], v=[0.0], weight=W_X)],
+        constraints=cons, name="double_pendulum")
+
+
+def test_step_linearization_matches_finite_differences():
+    p = _pendulum_problem("rk4")
+    tr = ddp_problem.transcribe(p)
+    o = tr.ocp
+    rng = np.random.default_rng(1)
+    x = jnp.asarray(rng.normal(size=4))
+    u = jnp.asarray(rng.normal(size=2) * 3)
+    nx = o.nx
+    xn0 = o.step(x, u, 3, tr.data)[0]
+
+    def f(z):
+        return o.difference(xn0, o.step(o.integrate(x, z[:nx]), z[nx:], 3, tr.data)[0])
+
+    z0 = jnp.concatenate([jnp.zeros(nx), u])
+    J = np.asarray(jax.jacfwd(f)(z0))
+    h = 1e-6
+    Jfd = np.stack([(np.asarray(f(z0 + h * e)) - np.asarray(f(z0 - h * e))) / (2 * h)
+                    for e in np.eye(len(z0))], axis=1)
+    np.testing.assert_allclose(J, Jfd, rtol=1e-6, atol=1e-8)
+
+
+def _crocoddyl_cost(integrator, torque_limit=None):
+    crocoddyl = pytest.importorskip("crocoddyl")
+    pin = pytest.importorskip("pinocchio")
+    pm = pin.buildModelFromUrdf(URDF)  # continuous joints: q = (cos, sin) per joint
+    state = crocoddyl.StateMultibody(pm)
+    act = crocoddyl.ActuationModelFull(state)
+
+    def dam(terminal):
+        cm = crocoddyl.CostModelSum(state, act.nu)
+        if terminal:
+            xr = np.concatenate([np.cos(TARGET[:1]), np.sin(TARGET[:1]), np.cos(TARGET[1:]), np.sin(TARGET[1:]),
+                                 np.zeros(2)])
+            cm.addCost("x", crocoddyl.CostModelResidual(state, crocoddyl.ResidualModelState(state, xr, act.nu)), W_X)
+        else:
+            cm.addCost("u", crocoddyl.CostModelResidual(state, crocoddyl.ResidualModelControl(state, act.nu)), W_U)
+        return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, act, cm)
+
+    def integrated(d, h):
+        if integrator == "euler":
+            return crocoddyl.IntegratedActionModelEuler(d, h)
+        return crocoddyl.IntegratedActionModelRK(d, crocoddyl.RKType.four, h)
+
+    run, term = integrated(dam(False), DT), integrated(dam(True), 0.0)
+    # the models agree on the dynamics first (a mismatched pinocchio build gives garbage)
+    q = np.array([0.3, -0.7])
+    xp = np.concatenate([np.cos(q[:1]), np.sin(q[:1]), np.cos(q[1:]), np.sin(q[1:]), [0.5, 1.1]])
+    dd = run.differential.createData()
+    run.differential.calc(dd, xp, np.array([1.0, -2.0]))
+    np.testing.assert_allclose(dd.xout, np.asarray(cs.aba(cs.load_urdf(URDF), q, np.array([0.5, 1.1]),
+                                                         np.array([1.0, -2.0]))), rtol=1e-10)
+    if torque_limit is not None:
+        run.u_lb, run.u_ub = -torque_limit * np.ones(2), torque_limit * np.ones(2)
+    x0 = np.concatenate([pin.neutral(pm), np.zeros(2)])
+    problem = crocoddyl.ShootingProblem(x0, [run] * N, term)
+    solver = crocoddyl.SolverBoxFDDP(problem) if torque_limit is not None else crocoddyl.SolverFDDP(problem)
+    solver.th_stop = 1e-14
+    assert solver.solve([x0] * (N + 1), [np.zeros(2)] * N, 500)
+    return solver.cost
+
+
+@pytest.mark.parametrize("integrator", ["rk4", "euler"])
+def test_matches_crocoddyl_fddp_and_boxfddp(integrator):
+    """The same optimum as Crocoddyl's FDDP (no limits) and BoxFDDP (torque boxes that
+    saturate), to 1e-6 relative in cost; one compiled transcription serves both (the
+    boxes are data)."""
+    p = _pendulum_problem(integrator, torque_limit=12.0)
+    tr, C = ddp_problem.compiled_transcription(p)
+    X0 = np.tile(np.zeros(4), (N + 1, 1))
+    U0 = np.zeros((N + 1, 2))
+    free = ddp.solve_ocp(tr.ocp, X0, U0, tr.data, -np.inf * np.ones_like(tr.lb), np.inf * np.ones_like(tr.ub),
+                         ddp.DDPOptions(tol=1e-12), compiled=C)
+    boxed = ddp.solve_ocp(tr.ocp, X0, U0, tr.data, tr.lb, tr.ub, ddp.DDPOptions(tol=1e-12), compiled=C)
+    assert free.converged and boxed.converged
+    assert np.abs(boxed.U).max() <= 12.0 + 1e-12 and np.abs(free.U[:-1]).max() > 12.5  # the boxes bind
+    c_free, c_box = _crocoddyl_cost(integrator), _crocoddyl_cost(integrator, torque_limit=12.0)
+    assert abs(free.cost - c_free) <= 1e-6 * c_free
+    assert abs(boxed.cost - c_box) <= 1e-6 * c_box
+
+
+def test_acrobot_swing_up_with_terminal_constraints():
+    """The shipped acrobot (shoulder upright at rest: terminal equalities through the
+    augmented Lagrangian; the elbow's end at rest as the spline problem imposes it), by
+    ``cs.solve(method="ddp")`` from the problem's own guess, no continuation."""
+    p = cs.examples.acrobot(continuation=False)
+    sol = cs.solve(p, method="ddp")
+    assert sol.success, sol.message
+    tr = sol.trajectory
+    assert abs(tr["q"][-1, 0] - np.pi) < 1e-5 and abs(tr["v"][-1, 0]) < 1e-5
+    assert abs(tr["q"][-1, 1]) < 1e-5 and abs(tr["v"][-1, 1]) < 1e-5
+    # per-step torques reach a cheaper motion than the 16-control-point spline (154.3)
+    assert sol.cost < 154.3
+    assert tr["u"].shape == (p.n_steps + 1, 1)

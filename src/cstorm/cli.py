@@ -367,8 +367,8 @@ def build_parser():
     ps.add_argument("--segment", default=None, metavar="NAME",
                     help="solve only this segment of a sequence (name or 0-based index), from the segment's own "
                          "nominal start state (its q0, v0)")
-    ps.add_argument("--method", choices=["slsqp", "trust-constr", "ipopt"], default=None,
-                    help="solver (default: the problem's choice, else slsqp)")
+    ps.add_argument("--method", choices=["slsqp", "trust-constr", "ipopt", "ddp"], default=None,
+                    help="solver: the paper's SQP (slsqp, trust-constr, ipopt) on B-spline paths, or constrained DDP on per-step motor torques (ddp) (default: the problem's choice, else slsqp)")
     ps.add_argument("--max-iter", type=int, default=None, help="iteration limit per stage (default: the problem's, "
                                                                "else 500)")
     ps.add_argument("--tol", type=float, default=None, help="optimality tolerance")

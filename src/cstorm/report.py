@@ -657,6 +657,10 @@ def _flags(dev, tol_position, tol_angle, tol_velocity=TOL_VELOCITY_M_S,
     return bad
 
 
+#: the checks of a torque-controlled (DDP) plan: its integrator at dt/factor and at
+#: dt/(4 factor) (the torques are exact controls of the continuous system, held over
+#: each step, so the only error is the integration's)
+_TORQUE_CHECKS = ("fine", "finer")
 _DEV_KEYS = ("position_m", "angle_deg", "velocity_m_s", "angular_velocity_deg_s", "path_position_m", "path_angle_deg")
 CHECKS = ("fine", "dop853", "other")
 
@@ -701,17 +705,25 @@ def fidelity(problem, solution, *, checks=("fine", "dop853"), factor: int = 4,
         tr = s.trajectory
         q_plan, v_plan = np.asarray(tr["q"]), np.asarray(tr["v"])
         t_plan = np.asarray(tr["t"], float)
-        ctrl = np.asarray(tr["ctrl"])
+        torques = "ctrl" not in tr  # a DDP solution: motor torques held over each step
+        ctrl = np.asarray(tr["u"] if torques else tr["ctrl"])
         entries = []
-        for name in checks:
+        for name in (_TORQUE_CHECKS if torques else checks):
             tc = time.perf_counter()
             if name == "dop853":
                 entry = dict(name=name, integrator="dop853 (scipy, adaptive)", rtol=rtol, atol=atol)
             else:
                 integ = p.integrator if name == "fine" else _OTHER[p.integrator]
                 entry = dict(name=name, integrator=integ, dt=p.dt / factor, steps=p.n_steps * factor)
+            if name == "finer":
+                entry = dict(name=name, integrator=p.integrator, dt=p.dt / (4 * factor), steps=p.n_steps * 4 * factor)
             try:
-                if name == "dop853":
+                if torques:
+                    from .optimize.ddp_problem import resimulate
+
+                    f_ = factor if name == "fine" else 4 * factor
+                    Q, V = resimulate(p, ctrl, q_plan[0], v_plan[0], f_, entry["integrator"])
+                elif name == "dop853":
                     Q, V, nfev = _adaptive(p, ctrl, q_plan[0], v_plan[0], t_plan, rtol=rtol, atol=atol)
                     entry["rhs_evaluations"] = nfev
                 else:
@@ -742,12 +754,16 @@ def fidelity(problem, solution, *, checks=("fine", "dop853"), factor: int = 4,
              for f in c["flags"]]
     words = dict(fine=f"the planning integrator at dt/{factor}",
                  dop853=f"scipy's adaptive DOP853 (rtol={rtol:g}, atol={atol:g}) on the continuous-time ODE",
-                 other=f"the other fixed-step integrator (rk4 <-> semi-implicit euler) at dt/{factor}")
+                 other=f"the other fixed-step integrator (rk4 <-> semi-implicit euler) at dt/{factor}",
+                 finer=f"the planning integrator at dt/{4 * factor}")
+    torque_plan = any("ctrl" not in s.trajectory for s in sols)
     out = dict(ok=not flags, flags=flags, **_worst(all_checks),
                tolerances=dict(position_m=tol_position_m, angle_deg=tol_angle_deg, velocity_m_s=tol_velocity_m_s,
                                angular_velocity_deg_s=tol_angular_velocity_deg_s),
-               method=("each segment re-simulated open-loop with its solution's spline controls from its planned "
-                       "start state with " + " and with ".join(words[c] for c in checks) +
+               method=("each segment re-simulated open-loop with its solution's " +
+                       ("motor torques (held over each step)" if torque_plan else "spline controls") +
+                       " from its planned start state with " +
+                       " and with ".join(words[c] for c in (_TORQUE_CHECKS if torque_plan else checks)) +
                        "; deviations of the final passive state from the plan (worst over checks and segments)"),
                wall_time_s=None)
     if len(seg_reports) == 1:

@@ -303,6 +303,9 @@ def _states(problem, q, v, along, n_states):
         if problem.shooting > 1:  # an open-loop rollout of the whole horizon is not the plan: its own states
             along, what = tr, None
             label = "along the solution's planned states (multiple shooting)"
+    elif hasattr(along, "trajectory") and isinstance(along.trajectory, dict):  # a DDP solution: its own states
+        along, what = along.trajectory, None
+        label = "along the solution's planned states"
     elif isinstance(along, dict) and "q" in along and "v" in along:
         what = None
     else:

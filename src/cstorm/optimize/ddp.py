@@ -102,8 +102,10 @@ class OCP:
 class DDPOptions:
     """Solver settings (the defaults are used for every problem).
 
-    max_iter: DDP iterations in all (outer loops included). tol: stationarity tolerance
-    (the model's predicted merit decrease of a full step, relative to ``1 + |merit|``).
+    max_iter: DDP iterations in all (outer loops included). tol: convergence tolerance,
+    relative to ``1 + |merit|``: the model's predicted merit decrease of a full step
+    below it, or the merit's change over the last ``stall_window`` iterations below it
+    (as SLSQP's ``ftol``), at a feasible iterate.
     constraint_tol: largest constraint violation accepted (units of the rows). gap_tol:
     largest dynamics gap (tangent norm) of a feasible iterate. mu0: initial penalty.
     mu_max: largest penalty. reg0, reg_min, reg_max: regularization. alpha_min: the
@@ -122,6 +124,7 @@ class DDPOptions:
     alpha_min: float = 2.0 ** -12
     armijo: float = 0.1
     inner_max_iter: int = 60
+    stall_window: int = 5
     verbose: bool = False
 
 
@@ -148,6 +151,17 @@ class DDPResult:
     lam_in: np.ndarray
     mu_eq: np.ndarray
     mu_in: np.ndarray
+    worst: tuple = None
+
+
+def _worst_row(ev):
+    """``(kind, node, row, violation)`` of the most violated constraint row, or None."""
+    out = None
+    for kind, v in (("eq", np.asarray(ev["ve"])), ("ineq", np.asarray(ev["vi"]))):
+        if v.size and (out is None or v.max() > out[3]):
+            node, row = np.unravel_index(int(np.argmax(v)), v.shape)
+            out = (kind, int(node), int(row), float(v.max()))
+    return out
 
 
 # ---------------------------------------------------------------------------------------
@@ -405,13 +419,15 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     best = None
     viol_prev = max(_max(ev["ve"]), _max(ev["vi"]))
     row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
-    inner = 0
+    inner = outer = 0
     if opt.verbose:
         log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
             f"{'time':>7}")
     try:
+        lin = None
         while it < opt.max_iter:
-            lin = C.linearize(X, U, data, al)
+            if lin is None:  # (kept when the iterate and the multipliers did not change)
+                lin = C.linearize(X, U, data, al)
             bw = C.backward(lin, U, lb, ub, reg)
             if not bool(bw["ok"]):
                 reg *= 10.0
@@ -424,15 +440,19 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             stat = -d1 / (1.0 + abs(merit))
             viol = max(_max(ev["ve"]), _max(ev["vi"]))
             inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
-            if feasible and (stat <= inner_tol or inner >= opt.inner_max_iter):
-                if viol <= opt.constraint_tol and stat <= opt.tol:
-                    status, converged = "converged", True
-                    break
-                if viol <= opt.constraint_tol and inner >= opt.inner_max_iter and stat <= 1e3 * opt.tol:
+            # no progress: the merit changed by less than tol (relative) over the last
+            # `stall_window` iterations (as SLSQP's ftol)
+            taken = [h["merit"] for h in history[-3 * opt.stall_window:] if h["step"] > 0 and h["outer"] == outer]
+            stalled = len(taken) >= opt.stall_window and \
+                abs(taken[-opt.stall_window] - merit) <= opt.tol * (1.0 + abs(merit))
+            if feasible and (stat <= inner_tol or stalled or inner >= opt.inner_max_iter):
+                if viol <= opt.constraint_tol and (stat <= opt.tol or stalled):
                     status, converged = "converged", True
                     break
                 # outer update: multipliers, and penalties of rows that did not improve
                 al = _update_al(al, ev, ocp, opt, row_prev)
+                outer += 1
+                lin = None
                 row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
                 viol_prev = viol
                 inner = 0
@@ -459,6 +479,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     break
             else:
                 X, U = accepted["X"], accepted["U"]
+                lin = None
                 gap_new = float(jnp.max(jnp.linalg.norm(accepted["gaps"], axis=1)))
                 ev = dict(accepted)
                 feasible = feasible or gap_new <= opt.gap_tol or alpha == 1.0
@@ -469,8 +490,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     reg = min(opt.reg_max, reg * 10.0)
             gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1))) if not feasible else 0.0
             viol = max(_max(ev["ve"]), _max(ev["vi"]))
-            entry = dict(iteration=it, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol, gap=gap,
-                         reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0)
+            entry = dict(iteration=it, outer=outer, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol,
+                         gap=gap, reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0)
             history.append(entry)
             if feasible and (best is None or _better(entry, best[0], opt)):
                 best = (entry, X, U)
@@ -486,7 +507,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     ev = C.evaluate(X, U, data, al)
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
     viol = max(_max(ev["ve"]), _max(ev["vi"]))
-    return DDPResult(X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
+    worst = _worst_row(ev)
+    return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
                      status=status, iterations=it, history=history, lam_eq=np.asarray(al["lam_eq"]),
                      lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]))

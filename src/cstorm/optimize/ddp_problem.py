@@ -73,6 +73,16 @@ class Transcription:
     unravel: object
     eq_terms: list
     in_terms: list
+    dyn: object = None
+
+    def row_label(self, kind, node, row):
+        """The term and time of row ``row`` of node ``node``'s ``c_eq``/``c_in``."""
+        k = 0
+        for label, n in (self.eq_terms if kind == "eq" else self.in_terms):
+            if row < k + n:
+                return f"{label!r} (row {row - k} of {n}) at t = {node * self.problem.dt:.4g} s"
+            k += n
+        return f"{kind} row {row} at node {node}"
 
     def initial_guess(self, data=None):
         return initial_guess(self, data)
@@ -301,7 +311,7 @@ def transcribe(problem) -> Transcription:
 
     ocp = OCP(n_steps=N, nx=2 * nv, nu=nu, n_eq=n_eq, n_in=n_in, integrate=integrate, difference=diff, step=step,
               point=point, cost=cost, constraints=constraints, mask_eq=mask_eq, mask_in=mask_in, x_bad=x_bad)
-    return Transcription(problem=p, ocp=ocp, data=data, lb=lb, ub=ub, unravel=unravel,
+    return Transcription(problem=p, ocp=ocp, data=data, lb=lb, ub=ub, unravel=unravel, dyn=dyn,
                          eq_terms=[(c.label(), n) for c, _, n, _ in eq_terms],
                          in_terms=[(c.label(), n) for c, _, n, _ in in_terms])
 
@@ -382,7 +392,8 @@ def initial_guess(tr: Transcription, data=None):
 def tracking_gains(tr: Transcription, data=None, bandwidth=None):
     """(N+1, n_active, 2 nv) feedback gains ``u = U + K (x (-) X)`` of a joint-space PD
     law on the active joints, critically damped at ``bandwidth`` rad/s (default ``1 /
-    (20 dt)``: well inside what the step resolves): ``K_p = M_jj w^2``, ``K_d = 2 M_jj
+    (10 dt)``: stiff enough that the joints hold the guess's postures under the contact
+    loads, and well inside what the step resolves): ``K_p = M_jj w^2``, ``K_d = 2 M_jj
     w`` with ``M_jj`` the joint's diagonal inertia (armature included) at the start
     configuration. The solver's first rollout uses them to follow the guess."""
     from ..dynamics.crba import mass_matrix
@@ -391,7 +402,7 @@ def tracking_gains(tr: Transcription, data=None, bandwidth=None):
     data = tr.data if data is None else data
     nv, N = p.model.nv, p.n_steps
     iva = np.array(p.layout.va_idx, int)
-    w = 1.0 / (20.0 * p.dt) if bandwidth is None else float(bandwidth)
+    w = 1.0 / (10.0 * p.dt) if bandwidth is None else float(bandwidth)
     M = np.asarray(mass_matrix(data["model"], data["q0"]))
     K = np.zeros((N + 1, len(iva), 2 * nv))
     for j, i in enumerate(iva):
@@ -415,6 +426,76 @@ def _guess_torques(p, Q, V, AA, data):
         return tau_a - pf[iva]
 
     return jax.jit(jax.vmap(one))(Q, V, AA)
+
+
+def _follow_guess(C, tr, lin, X, U, data, al):
+    """The first iterate: a rollout from the start state of the guess's torques with the
+    joint-space PD law of `tracking_gains` on the active joints (the passive DoFs move as
+    the dynamics says): dynamically consistent and, for a guess whose postures the robot
+    can hold, near it. Returns ``(X, U)`` (numpy) or None if that rollout diverges.
+
+    Why not a time-varying LQR around the guess's states: with stiff contact the LQR's
+    gains on the barely controllable contact modes reach 1e4-5e4 N m per rad, and the
+    clipped torques threw the tumbler over within the first second."""
+    lb, ub = jnp.asarray(tr.lb), jnp.asarray(tr.ub)
+    K = jnp.asarray(tracking_gains(tr, data))
+    r0 = C.forward(X, U, jnp.zeros_like(U), K, lin["gaps"], 1.0, lb, ub, data, al)
+    if bool(r0["bad"]):
+        return None
+    return np.asarray(r0["X"]), np.asarray(r0["U"])
+
+
+def resimulate(problem, U, q0, v0, factor=4, integrator=None):
+    """Re-simulate a DDP solution's controls ``U`` ((N+1, n_active) motor torques, each
+    held over its step) from ``(q0, v0)`` with ``integrator`` (default the problem's) at
+    ``dt / factor``. Returns ``(Q (N+1, nq), V (N+1, nv))`` on the problem's grid;
+    raises `DivergenceError` if the states leave the bounds."""
+    from ..errors import DivergenceError
+
+    tr, _ = compiled_transcription(problem)
+    integ = integrator or problem.integrator
+    key = ("ddp_resim", int(factor), integ)
+    cache = problem._compiled
+    if key not in cache:
+        layout_all = RolloutLayout.make(problem.model, ())
+        sub = _SubProblem(problem, factor, integ)
+        step, _ = _stepper(sub, tr.dyn, layout_all, lambda q, v, a, tau, cd: jnp.zeros(0))
+        nq = problem.model.nq
+
+        def run(x0, U, data):
+            def one(x, u):
+                def inner(xx, _):
+                    return step(xx, u, 0, data)[0], None
+                xn = jax.lax.scan(inner, x, None, length=int(factor))[0]
+                return xn, xn
+            _, xs = jax.lax.scan(one, x0, U[:-1])
+            return jnp.concatenate([x0[None], xs])
+
+        cache[key] = jax.jit(run)
+    x0 = jnp.concatenate([jnp.asarray(q0, jnp.float64), jnp.asarray(v0, jnp.float64)])
+    X = np.asarray(cache[key](x0, jnp.asarray(U, jnp.float64), tr.data))
+    nq = problem.model.nq
+    if not np.all(np.isfinite(X)) or np.any(np.abs(X[:, :nq]) > problem.q_bound) or \
+            np.any(np.abs(X[:, nq:]) > problem.v_bound):
+        raise DivergenceError(f"{problem.name}: the re-simulation of the torques at dt/{factor} diverged")
+    return X[:, :nq], X[:, nq:]
+
+
+@dataclasses.dataclass
+class _SubProblem:
+    """What `_stepper` reads of a problem, at a finer step."""
+
+    problem: object
+    factor: int
+    integrator: str
+
+    @property
+    def model(self):
+        return self.problem.model
+
+    @property
+    def dt(self):
+        return self.problem.dt / self.factor
 
 
 def compiled_transcription(problem):
@@ -472,14 +553,10 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     jax.block_until_ready(C.evaluate(Xj, Uj, data, al))
     compile_s = time.perf_counter() - tc
     if guess is None:
-        # the first iterate: the guess's torques with a PD law on the active joints that
-        # follows the guess's path (the passive DoFs move as the dynamics says): a
-        # dynamically consistent start near the guess
-        G = jnp.concatenate([jnp.zeros((1, tr.ocp.nx)), lin["gaps"][1:]])
-        r0 = C.forward(Xj, Uj, jnp.zeros_like(Uj), jnp.asarray(tracking_gains(tr, data)), lin["gaps"], 1.0,
-                       jnp.asarray(tr.lb), jnp.asarray(tr.ub), data, al)
-        if not bool(r0["bad"]):
-            X0, U0 = np.asarray(r0["X"]), np.asarray(r0["U"])
+        # the first iterate: the guess followed by a time-varying LQR (`_follow_guess`)
+        r0 = _follow_guess(C, tr, lin, Xj, Uj, data, al)
+        if r0 is not None:
+            X0, U0 = r0
     res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log)
     traj = tr.trajectory(res.Y)
     traj["u"] = np.asarray(res.U)
@@ -494,6 +571,8 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                }.get(res.status, res.status)
     if res.status == "converged" and not success:
         message += f"; but the constraint violation {res.violation:.3g} exceeds constraint_tol={constraint_tol:g}"
+    if res.worst is not None and res.violation > constraint_tol:
+        message += f"; most violated: {tr.row_label(*res.worst[:3])} by {res.worst[3]:.3g}"
     info = dict(method="ddp", controls="motor torques held over each step", max_iter=max_iter, tol=tol,
                 constraint_tol=constraint_tol, status=res.status, gap=res.gap, problem_hash=problem.hash(),
                 problem_description=problem.describe(), cstorm_version=_ver,

@@ -80,6 +80,10 @@ class OCP:
         enforces.
       x_bad: ``(x) -> bool``: a state the rollout must not pass (non-finite or beyond
         bounds); the rollout freezes there and the trial point is rejected.
+      traj_constraints: optional ``(Y (N+1, n_y), data) -> (g_eq (n_geq,), g_in
+        (n_gin,))``: rows that read the whole trajectory at once (a flight phase "at some
+        instant"). Their penalties' gradients reach every node; their Gauss-Newton
+        Hessians keep each node's own block (the couplings between nodes are dropped).
     """
 
     n_steps: int
@@ -96,6 +100,9 @@ class OCP:
     mask_eq: np.ndarray
     mask_in: np.ndarray
     x_bad: Callable
+    n_geq: int = 0
+    n_gin: int = 0
+    traj_constraints: Callable | None = None
 
 
 @dataclasses.dataclass
@@ -161,6 +168,10 @@ def _worst_row(ev):
         if v.size and (out is None or v.max() > out[3]):
             node, row = np.unravel_index(int(np.argmax(v)), v.shape)
             out = (kind, int(node), int(row), float(v.max()))
+    for kind, key in (("traj-eq", "vge"), ("traj-ineq", "vgi")):
+        v = np.asarray(ev.get(key, np.zeros(0)))
+        if v.size and (out is None or v.max() > out[3]):
+            out = (kind, -1, int(np.argmax(v)), float(v.max()))
     return out
 
 
@@ -199,9 +210,17 @@ class _Compiled:
         cost = jax.vmap(lambda y, k: o.cost(y, k, data))(Y, ks)
         ce, ci = jax.vmap(lambda y, k: o.constraints(y, k, data))(Y, ks)
         me, mi = jnp.asarray(o.mask_eq), jnp.asarray(o.mask_in)
-        pen = jax.vmap(_penalty)(ce, ci, me, mi, al["lam_eq"], al["lam_in"], al["mu_eq"], al["mu_in"])
+        pen = jnp.sum(jax.vmap(_penalty)(ce, ci, me, mi, al["lam_eq"], al["lam_in"], al["mu_eq"], al["mu_in"]))
         ve, vi = _violation(ce, ci, me, mi)
-        return cost, pen, ce, ci, ve, vi
+        out = dict(cost=jnp.sum(cost), ce=ce, ci=ci, ve=ve, vi=vi)
+        if o.traj_constraints is not None:
+            ge, gi = o.traj_constraints(Y, data)
+            te, ti = jnp.ones(ge.shape, bool), jnp.ones(gi.shape, bool)
+            pen = pen + _penalty(ge, gi, te, ti, al["lam_geq"], al["lam_gin"], al["mu_geq"], al["mu_gin"])
+            vge, vgi = _violation(ge, gi, te, ti)
+            out.update(ge=ge, gi=gi, vge=vge, vgi=vgi)
+        out["merit"] = out["cost"] + pen
+        return out
 
     def _evaluate(self, X, U, data, al):
         """Values of an iterate: ``dict(cost, merit, ve, vi (per-row violations), gaps
@@ -213,9 +232,7 @@ class _Compiled:
         Y = jnp.concatenate([Yh, yN[None]])
         gaps = jax.vmap(o.difference)(X[1:], Xn)
         gaps = jnp.concatenate([jnp.zeros((1, o.nx), X.dtype), gaps])
-        cost, pen, ce, ci, ve, vi = self._node_terms(Y, data, al)
-        return dict(cost=jnp.sum(cost), merit=jnp.sum(cost) + jnp.sum(pen), ve=ve, vi=vi, ce=ce, ci=ci,
-                    gaps=gaps, Y=Y)
+        return dict(self._node_terms(Y, data, al), gaps=gaps, Y=Y)
 
     # -- linearization -------------------------------------------------------------------
     def _linearize(self, X, U, data, al):
@@ -266,6 +283,17 @@ class _Compiled:
 
         g, H = jax.vmap(merit_derivs)(Y, JY, jnp.arange(N + 1), me, mi, al["lam_eq"], al["lam_in"], al["mu_eq"],
                                        al["mu_in"])
+        if o.traj_constraints is not None:
+            (ge, gi), (Ge, Gi) = o.traj_constraints(Y, data), jax.jacrev(lambda YY: o.traj_constraints(YY, data))(Y)
+            we = al["lam_geq"] + al["mu_geq"] * ge
+            act = al["lam_gin"] - al["mu_gin"] * gi > 0
+            wi = jnp.where(act, -(al["lam_gin"] - al["mu_gin"] * gi), 0.0)
+            he, hi = al["mu_geq"], jnp.where(act, al["mu_gin"], 0.0)
+            # per node: the rows' Jacobians w.r.t. (dx, u), (n_g, nz)
+            Ze = jnp.einsum("gky,kyz->kgz", Ge, JY)
+            Zi = jnp.einsum("gky,kyz->kgz", Gi, JY)
+            g = g + jnp.einsum("kgz,g->kz", Ze, we) + jnp.einsum("kgz,g->kz", Zi, wi)
+            H = H + jnp.einsum("kgz,g,kgw->kzw", Ze, he, Ze) + jnp.einsum("kgz,g,kgw->kzw", Zi, hi, Zi)
         gaps = jnp.concatenate([jnp.zeros((1, nx), X.dtype), -gaps])  # f_{k+1} = x_{k+1} (-) f(x_k, u_k), sign below
         return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=-gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
                     luu=H[:, nx:, nx:], lux=H[:, nx:, :nx])
@@ -336,11 +364,10 @@ class _Compiled:
         Xn = jnp.concatenate([Xn, xN[None]])
         Un = jnp.concatenate([Un, uN[None]])
         Y = jnp.concatenate([Yh, yN[None]])
-        cost, pen, ce, ci, ve, vi = self._node_terms(Y, data, al)
-        bad = bad | ~jnp.all(jnp.isfinite(Y)) | ~jnp.isfinite(jnp.sum(cost) + jnp.sum(pen))
+        out = self._node_terms(Y, data, al)
+        bad = bad | ~jnp.all(jnp.isfinite(Y)) | ~jnp.isfinite(out["merit"])
         # the gaps left: (1 - alpha) of the old ones (exactly, up to the transport)
-        return dict(X=Xn, U=Un, Y=Y, cost=jnp.sum(cost), merit=jnp.sum(cost) + jnp.sum(pen), ve=ve, vi=vi,
-                    ce=ce, ci=ci, gaps=(1.0 - alpha) * gaps, bad=bad)
+        return dict(out, X=Xn, U=Un, Y=Y, gaps=(1.0 - alpha) * gaps, bad=bad)
 
 
 def _box_qp(H, g, Hux, lo, hi, n_iter=12):
@@ -407,8 +434,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     U = jnp.asarray(U0, jnp.float64)
     lb, ub = jnp.asarray(lb, jnp.float64), jnp.asarray(ub, jnp.float64)
     U = jnp.clip(U, lb, ub)
-    al = dict(lam_eq=jnp.zeros((N + 1, ocp.n_eq)), lam_in=jnp.zeros((N + 1, ocp.n_in)),
-              mu_eq=jnp.full((N + 1, ocp.n_eq), opt.mu0), mu_in=jnp.full((N + 1, ocp.n_in), opt.mu0))
+    al = initial_multipliers(ocp, opt.mu0)
     t0 = time.perf_counter()
     ev = C.evaluate(X, U, data, al)
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
@@ -417,8 +443,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     history = []
     status, it, converged = "max_iter", 0, False
     best = None
-    viol_prev = max(_max(ev["ve"]), _max(ev["vi"]))
-    row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
+    viol_prev = _max(_rows(ev))
+    row_prev = _row_state(ev)
     inner = outer = 0
     if opt.verbose:
         log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
@@ -438,7 +464,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             d1, d2 = float(bw["d1"]), float(bw["d2"])
             merit = float(ev["merit"])
             stat = -d1 / (1.0 + abs(merit))
-            viol = max(_max(ev["ve"]), _max(ev["vi"]))
+            viol = _max(_rows(ev))
             inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
             # no progress: the merit changed by less than tol (relative) over the last
             # `stall_window` iterations (as SLSQP's ftol)
@@ -453,7 +479,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 al = _update_al(al, ev, ocp, opt, row_prev)
                 outer += 1
                 lin = None
-                row_prev = (np.asarray(ev["ve"]), np.asarray(ev["vi"]))
+                row_prev = _row_state(ev)
                 viol_prev = viol
                 inner = 0
                 ev = C.evaluate(X, U, data, al)
@@ -489,7 +515,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 elif alpha < 0.1:
                     reg = min(opt.reg_max, reg * 10.0)
             gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1))) if not feasible else 0.0
-            viol = max(_max(ev["ve"]), _max(ev["vi"]))
+            viol = _max(_rows(ev))
             entry = dict(iteration=it, outer=outer, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol,
                          gap=gap, reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0)
             history.append(entry)
@@ -506,7 +532,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             _, X, U = best
     ev = C.evaluate(X, U, data, al)
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
-    viol = max(_max(ev["ve"]), _max(ev["vi"]))
+    viol = _max(_rows(ev))
     worst = _worst_row(ev)
     return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
@@ -522,19 +548,45 @@ def _better(a, b, opt):
     return a["cost"] < b["cost"] if fa else a["violation"] < b["violation"]
 
 
+def initial_multipliers(ocp, mu0):
+    """Zero multipliers and the penalty ``mu0`` on every row (a dict of arrays)."""
+    N = ocp.n_steps
+    return dict(lam_eq=jnp.zeros((N + 1, ocp.n_eq)), lam_in=jnp.zeros((N + 1, ocp.n_in)),
+                mu_eq=jnp.full((N + 1, ocp.n_eq), mu0), mu_in=jnp.full((N + 1, ocp.n_in), mu0),
+                lam_geq=jnp.zeros(ocp.n_geq), lam_gin=jnp.zeros(ocp.n_gin), mu_geq=jnp.full(ocp.n_geq, mu0),
+                mu_gin=jnp.full(ocp.n_gin, mu0))
+
+
+def _rows(ev):
+    """Every row's violation, flattened: node rows then trajectory rows."""
+    parts = [np.asarray(ev["ve"]).ravel(), np.asarray(ev["vi"]).ravel()]
+    if "vge" in ev:
+        parts += [np.asarray(ev["vge"]), np.asarray(ev["vgi"])]
+    return np.concatenate(parts)
+
+
 def _update_al(al, ev, ocp, opt, row_prev):
     """The outer loop's first-order multiplier update and per-row penalty increase."""
     ce, ci = ev["ce"], ev["ci"]
     me, mi = jnp.asarray(ocp.mask_eq), jnp.asarray(ocp.mask_in)
-    lam_eq = jnp.where(me, al["lam_eq"] + al["mu_eq"] * ce, 0.0)
-    lam_in = jnp.where(mi, jnp.maximum(0.0, al["lam_in"] - al["mu_in"] * ci), 0.0)
-    ve, vi = np.asarray(ev["ve"]), np.asarray(ev["vi"])
-    pe, pi = row_prev
-    up_e = (ve > opt.constraint_tol) & (ve > 0.25 * pe)
-    up_i = (vi > opt.constraint_tol) & (vi > 0.25 * pi)
-    mu_eq = jnp.where(up_e, jnp.minimum(al["mu_eq"] * 10.0, opt.mu_max), al["mu_eq"])
-    mu_in = jnp.where(up_i, jnp.minimum(al["mu_in"] * 10.0, opt.mu_max), al["mu_in"])
-    return dict(lam_eq=lam_eq, lam_in=lam_in, mu_eq=mu_eq, mu_in=mu_in)
+    out = dict(al)
+    out["lam_eq"] = jnp.where(me, al["lam_eq"] + al["mu_eq"] * ce, 0.0)
+    out["lam_in"] = jnp.where(mi, jnp.maximum(0.0, al["lam_in"] - al["mu_in"] * ci), 0.0)
+    if "ge" in ev:
+        out["lam_geq"] = al["lam_geq"] + al["mu_geq"] * ev["ge"]
+        out["lam_gin"] = jnp.maximum(0.0, al["lam_gin"] - al["mu_gin"] * ev["gi"])
+    pairs = [("mu_eq", "ve"), ("mu_in", "vi")] + ([("mu_geq", "vge"), ("mu_gin", "vgi")] if "ge" in ev else [])
+    for (mu, v), prev in zip(pairs, row_prev):
+        now = np.asarray(ev[v])
+        up = (now > opt.constraint_tol) & (now > 0.25 * prev)
+        out[mu] = jnp.where(up, jnp.minimum(al[mu] * 10.0, opt.mu_max), al[mu])
+    return out
+
+
+def _row_state(ev):
+    """The per-row violations `_update_al` compares with at the next outer update."""
+    keys = ("ve", "vi", "vge", "vgi") if "vge" in ev else ("ve", "vi")
+    return tuple(np.asarray(ev[k]) for k in keys)
 
 
 def compile_ocp(ocp: OCP):

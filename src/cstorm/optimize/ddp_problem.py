@@ -73,14 +73,18 @@ class Transcription:
     unravel: object
     eq_terms: list
     in_terms: list
+    geq_terms: list = dataclasses.field(default_factory=list)
+    gin_terms: list = dataclasses.field(default_factory=list)
     dyn: object = None
 
     def row_label(self, kind, node, row):
         """The term and time of row ``row`` of node ``node``'s ``c_eq``/``c_in``."""
         k = 0
-        for label, n in (self.eq_terms if kind == "eq" else self.in_terms):
+        terms = dict(eq=self.eq_terms, ineq=self.in_terms, **{"traj-eq": self.geq_terms,
+                                                              "traj-ineq": self.gin_terms})[kind]
+        for label, n in terms:
             if row < k + n:
-                return f"{label!r} (row {row - k} of {n}) at t = {node * self.problem.dt:.4g} s"
+                return f"{label!r} (row {row - k} of {n})" + ("" if node < 0 else f" at t = {node * self.problem.dt:.4g} s")
             k += n
         return f"{kind} row {row} at node {node}"
 
@@ -214,6 +218,7 @@ def transcribe(problem) -> Transcription:
     ctx0 = EvalContext(p, model0, data["params"])
     t_grid = np.asarray(p.t)
     eq_terms, in_terms = [], []  # (term, where, n_rows, node mask (N+1,))
+    geq_terms, gin_terms = [], []  # whole-trajectory terms: (term, n_rows)
     lb = np.full((N + 1, nu), -np.inf)
     ub = np.full((N + 1, nu), np.inf)
     pt0 = unravel(flat0)
@@ -234,12 +239,11 @@ def transcribe(problem) -> Transcription:
             n = jax.eval_shape(lambda e: jnp.atleast_1d(c.values(ctx0, e, start0)).ravel(), end0).shape[0]
             mask = np.zeros(N + 1, bool)
             mask[N] = True
-        else:
-            raise ProblemError(
-                f"{p.name}: method='ddp' cannot use the constraint {c.label()!r} ({type(c).__name__}): it reads the "
-                "whole trajectory at once, and DDP takes terms evaluated at one instant ('path') or at the end "
-                "('end'); set its `ddp` attribute and `point_values` if it can be written per instant, or use "
-                "method='slsqp'")
+        else:  # a term that reads the whole trajectory (its values on the constraint grid)
+            n = jax.eval_shape(lambda: jnp.atleast_1d(c.values(ctx0, end0, _samples(p, jnp.tile(flat0, (N + 1, 1)),
+                                                                                     unravel, data))).ravel()).shape[0]
+            (geq_terms if c.kind == "eq" else gin_terms).append((c, n))
+            continue
         (eq_terms if c.kind == "eq" else in_terms).append((c, how, n, mask))
     if np.any(lb > ub):
         raise ProblemError(f"{p.name}: the torque limits leave no admissible torque (lower > upper bound)")
@@ -298,6 +302,18 @@ def transcribe(problem) -> Transcription:
 
         return vals(eq_terms), vals(in_terms)
 
+    def traj_constraints(Y, data):
+        ctx = EvalContext(p, data["model"], data["params"])
+        samples = _samples(p, Y, unravel, data)
+        yN = unravel(Y[-1])
+        end = dict(q=yN["q"], v=yN["v"], a=yN["a"], tau=yN["tau"])
+
+        def vals(terms):
+            out = [jnp.atleast_1d(c.values(ctx, end, samples)).ravel() for c, _ in terms]
+            return jnp.concatenate(out) if out else jnp.zeros(0, Y.dtype)
+
+        return vals(geq_terms), vals(gin_terms)
+
     qb, vb = p.q_bound, p.v_bound
 
     def x_bad(x):
@@ -310,10 +326,28 @@ def transcribe(problem) -> Transcription:
         return jnp.concatenate([q_difference(model0, x0[:nq], x1[:nq]), x1[nq:] - x0[nq:]])
 
     ocp = OCP(n_steps=N, nx=2 * nv, nu=nu, n_eq=n_eq, n_in=n_in, integrate=integrate, difference=diff, step=step,
-              point=point, cost=cost, constraints=constraints, mask_eq=mask_eq, mask_in=mask_in, x_bad=x_bad)
+              point=point, cost=cost, constraints=constraints, mask_eq=mask_eq, mask_in=mask_in, x_bad=x_bad,
+              n_geq=sum(n for _, n in geq_terms), n_gin=sum(n for _, n in gin_terms),
+              traj_constraints=traj_constraints if geq_terms or gin_terms else None)
     return Transcription(problem=p, ocp=ocp, data=data, lb=lb, ub=ub, unravel=unravel, dyn=dyn,
                          eq_terms=[(c.label(), n) for c, _, n, _ in eq_terms],
-                         in_terms=[(c.label(), n) for c, _, n, _ in in_terms])
+                         in_terms=[(c.label(), n) for c, _, n, _ in in_terms],
+                         geq_terms=[(c.label(), n) for c, n in geq_terms],
+                         gin_terms=[(c.label(), n) for c, n in gin_terms])
+
+
+def _samples(p, Y, unravel, data):
+    """The `MotionProblem`'s ``samples`` (its constraint grid, and every step under
+    ``"steps"``) from the stacked node points ``Y`` (N+1, n_y), for terms that read the
+    whole trajectory."""
+    pts = jax.vmap(unravel)(Y)
+    idx = np.asarray(p.sample_idx)
+    t = jnp.asarray(p.t)
+    out = dict(t=t[idx], q=pts["q"][idx], v=pts["v"][idx], a=pts["a"][idx], tau=pts["tau"][idx],
+               steps=dict(t=t, q=pts["q"], v=pts["v"], a=pts["a"], tau=pts["tau"]))
+    if pts.get("contact") is not None:
+        out["contact"] = jax.tree_util.tree_map(lambda x: x[idx], pts["contact"])
+    return out
 
 
 class _ActiveBoundary:
@@ -523,7 +557,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     import jax.numpy as jnp
 
     from .. import __version__ as _ver
-    from .ddp import DDPOptions, solve_ocp
+    from .ddp import DDPOptions, initial_multipliers, solve_ocp
     from .solution import Solution
 
     t0 = time.perf_counter()
@@ -543,8 +577,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     # compile (timed separately): one call of each compiled function
     tc = time.perf_counter()
     N, nu = problem.n_steps, tr.ocp.nu
-    al = dict(lam_eq=jnp.zeros((N + 1, tr.ocp.n_eq)), lam_in=jnp.zeros((N + 1, tr.ocp.n_in)),
-              mu_eq=jnp.ones((N + 1, tr.ocp.n_eq)), mu_in=jnp.ones((N + 1, tr.ocp.n_in)))
+    al = initial_multipliers(tr.ocp, opt.mu0)
     Xj, Uj = jnp.asarray(X0), jnp.clip(jnp.asarray(U0), tr.lb, tr.ub)
     lin = C.linearize(Xj, Uj, data, al)
     bw = C.backward(lin, Uj, jnp.asarray(tr.lb), jnp.asarray(tr.ub), 1e-9)
@@ -576,7 +609,8 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     info = dict(method="ddp", controls="motor torques held over each step", max_iter=max_iter, tol=tol,
                 constraint_tol=constraint_tol, status=res.status, gap=res.gap, problem_hash=problem.hash(),
                 problem_description=problem.describe(), cstorm_version=_ver,
-                constraint_rows=dict(eq=tr.eq_terms, ineq=tr.in_terms))
+                constraint_rows=dict(eq=tr.eq_terms, ineq=tr.in_terms, trajectory_eq=tr.geq_terms,
+                                     trajectory_ineq=tr.gin_terms))
     sol = Solution(success=bool(success), message=message, cost=float(res.cost),
                    constraint_violation=float(res.violation), iterations=res.iterations,
                    x=np.asarray(res.U).ravel(), trajectory=traj, history=res.history, problem=problem.name,

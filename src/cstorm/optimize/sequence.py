@@ -58,8 +58,9 @@ class MotionSequence:
         from .solve import _solve_problem
         sols = []
         q0 = v0 = None
+        # (the background compile builds the SQP transcription's functions; DDP compiles its own)
         warm = (_Precompiler(self.segments[1:], first=self.segments[0])
-                if self.solve_options.get("precompile", True) else None)
+                if self.solve_options.get("precompile", True) and method != "ddp" else None)
         for k, seg in enumerate(self.segments):
             ck = None if checkpoint is None else f"{checkpoint}.seg{k}.npz"
             if warm is not None and k > 0:

@@ -26,8 +26,13 @@ Transcription
   terms at every node (`Constraint.point_values`, within their time window),
   ``"end"`` terms at node ``N`` (their ``values`` with the start state as the only
   sample), ``"box"`` terms (`constraints.TorqueLimits`) as bounds on ``u`` at every
-  node. Terms that read the whole trajectory at once (``ddp = None``) are refused with
-  a `ProblemError` naming them.
+  node; terms that read the whole trajectory at once (``ddp = None``, e.g. a flight
+  phase at some instant) as whole-trajectory rows (`ddp.OCP.traj_constraints`). The
+  spline transcription's built-in conditions become rows too: the active joints' end
+  position, velocity and rest (equalities at ``N``), ``rest_start`` (at node 0), and
+  their position limits at every node (the paper's method keeps them by bounding the
+  control points), unless the problem has its own `constraints.JointLimits` or
+  ``x_bounds``.
 - Initial guess (`initial_guess`): the active joints follow the problem's initial
   guess (its splines), the passive joints its ``node_guess`` (a state-level guess) or
   rest at ``q0``; the controls are the torques that the hybrid dynamics needs along that
@@ -387,8 +392,39 @@ class _ActiveBoundary:
         return jnp.concatenate(out)
 
 
+class _ActiveLimits:
+    """The active joints' position limits (the model's finite ``q_lower``/``q_upper``) at
+    every node, as the paper's method keeps them through its variable bounds
+    (`cstorm.optimize.solve.variable_bounds`). Inequalities, rad or m."""
+
+    kind = "ineq"
+    ddp = "path"
+
+    def __init__(self, problem):
+        m, lay = problem.model, problem.layout
+        lo, hi = np.asarray(m.q_lower, float), np.asarray(m.q_upper, float)
+        ia = np.array(lay.qa_idx, int)
+        self.lo_i, self.hi_i = ia[np.isfinite(lo[ia])], ia[np.isfinite(hi[ia])]
+        self.lo, self.hi = lo[self.lo_i], hi[self.hi_i]
+
+    def label(self):
+        return "active joint limits"
+
+    def node_mask(self, problem):
+        return np.ones(problem.n_steps + 1, bool)
+
+    def point_values(self, ctx, point):
+        q = point["q"]
+        return jnp.concatenate([q[self.lo_i] - self.lo, self.hi - q[self.hi_i]])
+
+
 def _boundary_terms(p):
     out = []
+    from .constraints import JointLimits
+    lim = _ActiveLimits(p)
+    if (len(lim.lo_i) or len(lim.hi_i)) and not any(isinstance(c, JointLimits) for c in p.constraints) \
+            and getattr(p, "x_bounds", None) is None:
+        out.append(lim)
     if p.layout.n_active and (p.qa_final is not None or p.rest_end or p.va_final is not None):
         out.append(_ActiveBoundary(p, at_start=False))
     if p.layout.n_active and p.rest_start:

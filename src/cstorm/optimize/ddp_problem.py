@@ -51,6 +51,7 @@ from jax.flatten_util import ravel_pytree
 
 from ..dynamics.configuration import difference as q_difference, integrate as q_integrate
 from ..dynamics.derivatives_fast import _hybrid_fast
+from ..dynamics.hybrid import _hybrid
 from ..dynamics.passive import passive_forces
 from ..errors import ProblemError
 from ..simulate import RolloutLayout, _dexpinv, _passive_exp
@@ -110,17 +111,24 @@ class Transcription:
 def _dynamics(problem, layout_all, iva):
     """``dyn(q, v, u, data) -> (a (nv,), tau (nv,), contact data)``: forward dynamics with
     motor torques ``u`` on the active DoFs (``tau``: the trajectory's convention, motor
-    torques on active DoFs, spring/damper/limit forces on passive ones)."""
+    torques on active DoFs, spring/damper/limit forces on passive ones). Derivatives: the
+    analytic rule of the hybrid algorithm (composed with the contact Jacobian), or with
+    the problem's ``derivatives="autodiff"`` JAX's through the algorithm (the reference;
+    the same values, derivatives equal to rounding)."""
     model0 = problem.model
     nv = model0.nv
     all_passive = (False,) * nv
     cfn = problem._contact_fn
+    autodiff = problem.derivatives == "autodiff"
 
     def dyn(q, v, u, data):
         model = data["model"]
         pf = passive_forces(model, q, v)
         gen = pf.at[iva].add(u) if len(iva) else pf
-        if cfn is None:
+        if autodiff:  # the reference: JAX differentiates through the recursive algorithm
+            f_ext, cd = (None, None) if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)
+            _, a = _hybrid(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, f_ext)
+        elif cfn is None:
             _, a = _hybrid_fast(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, None)
             cd = None
         else:

@@ -146,6 +146,16 @@ def test_acrobot_swing_up_with_terminal_constraints():
     # per-step torques reach a cheaper motion than the 16-control-point spline (154.3)
     assert sol.cost < 154.3
     assert tr["u"].shape == (p.n_steps + 1, 1)
+    # `spline_guess`: the paper's control points fitted to the DDP path (a start for
+    # polishing with SLSQP): closer to it than the problem's own guess, boundary
+    # conditions kept (16 control points cannot follow per-step torques exactly)
+    x = ddp_problem.spline_guess(p, sol)
+    assert x.shape == (p.n_vars,)
+    B0 = np.asarray(p.spline.basis(p.t)[0])
+    path = lambda xx: B0 @ np.asarray(p.ctrl(jnp.asarray(xx), p.data()))[:, 0]
+    rms = lambda xx: np.sqrt(np.mean((path(xx) - tr["q"][:, 1]) ** 2))
+    assert rms(x) < 0.5 * rms(p.x0)
+    assert abs(path(x)[0]) < 1e-12 and abs(path(x)[-1]) < 1e-12
 
 
 class _PeakElbow(constraints.Constraint):

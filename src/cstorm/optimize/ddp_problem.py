@@ -663,3 +663,21 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                    info=info)
     sol.segments = [Solution(**{**sol.__dict__, "segments": []})]
     return sol
+
+
+def spline_guess(problem, solution):
+    """The paper's decision vector ``x`` (n_vars,) fitted to a DDP solution: each active
+    joint's quintic B-spline fitted by least squares to the solution's joint path on the
+    grid, with the problem's boundary conditions imposed (`MotionProblem`'s
+    ``initial_guess`` as samples). A start for ``cs.solve(problem, method="slsqp",
+    x0=...)`` that polishes a DDP motion in the paper's parametrization; the fitted
+    paths are smoother than per-step torques allow, so the rollout of ``x`` is near the
+    DDP motion, not on it."""
+    tr = solution.trajectory
+    t, q = np.asarray(tr["t"], float), np.asarray(tr["q"], float)
+    if t.shape[0] != problem.n_steps + 1:
+        raise ProblemError(f"{problem.name}: the solution has {t.shape[0]} grid points, the problem "
+                           f"{problem.n_steps + 1}")
+    model = problem.model
+    guess = {n: (t, q[:, model.joint_q(n).start]) for n in problem.active}
+    return problem._initial_guess(guess)

@@ -114,7 +114,7 @@ def _crocoddyl_cost(integrator, torque_limit=None):
     return solver.cost
 
 
-@pytest.mark.parametrize("integrator", ["rk4", "euler"])
+@pytest.mark.parametrize("integrator", ["rk4", pytest.param("euler", marks=pytest.mark.slow)])
 def test_matches_crocoddyl_fddp_and_boxfddp(integrator):
     """The same optimum as Crocoddyl's FDDP (no limits) and BoxFDDP (torque boxes that
     saturate), to 1e-6 relative in cost; one compiled transcription serves both (the

@@ -520,7 +520,16 @@ def _follow_guess(C, tr, lin, X, U, data, al):
     r0 = C.forward(X, U, jnp.zeros_like(U), K, lin["gaps"], 1.0, lb, ub, data, al)
     if bool(r0["bad"]):
         return None
-    return np.asarray(r0["X"]), np.asarray(r0["U"])
+    X1, U1 = np.asarray(r0["X"]), np.array(r0["U"])
+    # the final node's torques enter no dynamics: those that hold the active joints still
+    # at the final state (what a rest at the end asks), not the PD law's reaction to the
+    # final tracking error
+    p = tr.problem
+    nq = p.model.nq
+    xN = jnp.asarray(X1[-1:])
+    hold = np.asarray(_guess_torques(p, xN[:, :nq], xN[:, nq:], jnp.zeros((1, len(p.layout.va_idx))), data))[0]
+    U1[-1] = np.clip(hold, tr.lb[-1], tr.ub[-1])
+    return X1, U1
 
 
 def resimulate(problem, U, q0, v0, factor=4, integrator=None):

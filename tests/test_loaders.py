@@ -81,12 +81,9 @@ def test_malformed_xml_names_line(write):
     "text, pattern",
     [
         (urdf(link("base"), link("l1", m=-1.0), joint("j1", "base", "l1")), r"link 'l1': mass must be finite and >= 0"),
-        (urdf(link("base"), '<link name="l1"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.05" '
-              'ixy="0" ixz="0" iyz="0"/></inertial></link>', joint("j1", "base", "l1")),
-         r"link 'l1': inertia violates the triangle inequality"),
         (urdf(link("base"), '<link name="l1"><inertial><mass value="1"/><inertia ixx="0.01" iyy="-0.01" izz="0.01" '
               'ixy="0" ixz="0" iyz="0"/></inertial></link>', joint("j1", "base", "l1")),
-         r"link 'l1': inertia is not positive semi-definite"),
+         r"body 'l1': inertia is not positive semi-definite"),
         (two_link(type="screw"), r"robot\.urdf:5: <joint> of joint 'j1': unknown joint type 'screw'"),
         (two_link(type="planar"), r"<joint> of joint 'j1': joint type 'planar' is not supported"),
         (urdf(link("base"), link("l1"), joint("j1", "bse", "l1")), r"<parent> of joint 'j1': parent link 'bse' does not exist"),
@@ -110,7 +107,7 @@ def test_malformed_xml_names_line(write):
         (urdf(link("base"), link("base")), r"link 'base' is defined twice"),
         ('<?xml version="1.0"?><robt name="x"/>', r"the root element of a URDF must be <robot>"),
     ],
-    ids=["negative_mass", "triangle", "indefinite", "unknown_type", "planar", "dangling_parent", "dangling_child",
+    ids=["negative_mass", "indefinite", "unknown_type", "planar", "dangling_parent", "dangling_child",
          "cycle", "two_roots", "two_parents", "massless_subtree", "missing_type", "bad_axis", "bad_limits",
          "no_inertia", "bad_box", "duplicate_link", "not_robot"],
 )
@@ -126,12 +123,128 @@ def test_missing_file():
         load_urdf("/nonexistent/nope.urdf")
 
 
-def test_lenient_inertia_warns(write):
-    text = urdf(link("base"), '<link name="l1"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.05" '
-                'ixy="0" ixz="0" iyz="0"/></inertial></link>', joint("j1", "base", "l1"))
-    with pytest.warns(UserWarning, match="triangle inequality"):
-        model = load_urdf(write(text), inertia_check="lenient")
-    assert model.nv == 1
+def _inertial_link(name, m, ixx, iyy, izz, ixy=0.0, ixz=0.0, iyz=0.0):
+    return (f'<link name="{name}"><inertial><mass value="{m}"/><inertia ixx="{ixx}" iyy="{iyy}" izz="{izz}" '
+            f'ixy="{ixy}" ixz="{ixz}" iyz="{iyz}"/></inertial></link>')
+
+
+def _fixed(name, parent, child, xyz="0 0 0"):
+    return joint(name, parent, child, type="fixed", extra=f'<origin xyz="{xyz}"/>')
+
+
+def test_triangle_inequality_warns_by_default_and_strict_refuses(write):
+    """Implausible but computable (PR2's sensor mount: [0.001, 0.001, 0.01]): one warning
+    per body naming it and the margin; inertia_check='strict' refuses it."""
+    p = write(urdf(link("base"), _inertial_link("l1", 1, 0.001, 0.001, 0.01), joint("j1", "base", "l1")))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        model = load_urdf(p)
+    msgs = [str(x.message) for x in w if issubclass(x.category, cs.ModelWarning)]
+    assert len(msgs) == 1 and "body 'l1'" in msgs[0] and "triangle inequality" in msgs[0] and "by 0.008" in msgs[0]
+    np.testing.assert_allclose(model.inertia[0], np.diag([0.001, 0.001, 0.01]))  # loaded as is
+    for check in ("warn", "lenient"):
+        with pytest.warns(cs.ModelWarning, match="triangle inequality"):
+            load_urdf(p, inertia_check=check)
+    with pytest.raises(cs.ModelError, match=r"robot\.urdf: body 'l1': implausible inertia: .*triangle inequality"):
+        load_urdf(p, inertia_check="strict")
+    with pytest.raises(cs.ModelError, match="inertia_check must be one of"):
+        load_urdf(p, inertia_check="loose")
+
+
+def test_link_judged_by_its_merged_body(write):
+    """A link that is not a rigid body's inertia on its own but is fixed to a heavier one:
+    a placeholder (mass 1e-6, every entry 1e-6: moments [~0, ~0, 3e-6]) is a note; a
+    non-negligible one (PR2's sensor mount inside the head) is one warning for the body,
+    naming the link; strict refuses the latter, not the former."""
+    heavy = _inertial_link("trunk", 20.0, 0.5, 0.6, 0.7)
+    placeholder = _inertial_link("base", 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
+    p = write(urdf(placeholder, heavy, _fixed("fb", "base", "trunk", "0.1 0 0"), link("l1"),
+                   joint("j1", "trunk", "l1", type="continuous")))
+    for check in ("warn", "strict"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            model = load_urdf(p, floating_base="free", inertia_check=check)
+        assert any("link 'base'" in n and "placeholder" in n for n in model.notes), model.notes
+    pin = pytest.importorskip("pinocchio")
+    pm = pin.buildModelFromUrdf(p, pin.JointModelFreeFlyer())
+    I = pm.inertias[1]  # the merged root body, in Pinocchio's root frame = cstorm's
+    np.testing.assert_allclose(model.mass[0], I.mass, rtol=1e-15)
+    np.testing.assert_allclose(model.com[0], I.lever, atol=1e-15)
+    np.testing.assert_allclose(model.inertia[0], I.inertia, atol=1e-15)
+
+    mount = _inertial_link("mount", 0.05, 0.001, 0.001, 0.01)
+    p = write(urdf(heavy, mount, _fixed("fm", "trunk", "mount", "0 0 0.2"), link("l1"), joint("j1", "trunk", "l1")))
+    with pytest.warns(cs.ModelWarning, match=r"body 'trunk' \(2 links merged by fixed joints\): implausible inertia: "
+                                             r"link 'mount' on its own .*I3 exceeds I1 \+ I2 by 0\.008.*merged body's "
+                                             r"inertia is physical"):
+        load_urdf(p, floating_base="free")
+    with pytest.raises(cs.ModelError, match="link 'mount' on its own"):
+        load_urdf(p, floating_base="free", inertia_check="strict")
+
+
+def test_indefinite_link_on_a_physical_body_warns(write):
+    """TIAGo's antenna: [-3.5e-8, 3.5e-8, 9.1e-8] on its own, welded to a 43 kg base:
+    loaded with a warning naming it (strict: an error); the same link as a body of its
+    own is refused."""
+    antenna = _inertial_link("antenna", 1e-6, 0.0, 0.0, 9.1e-8, ixy=3.5e-8)
+    heavy = _inertial_link("base", 43.0, 0.7, 2.0, 2.1)
+    p = write(urdf(heavy, antenna, _fixed("fa", "base", "antenna", "0.1 0.1 0.3"), link("l1"),
+                   joint("j1", "base", "l1")))
+    with pytest.warns(cs.ModelWarning, match=r"body 'base' .*link 'antenna' on its own is indefinite"):
+        model = load_urdf(p, floating_base="free")
+    assert model.nv == 7
+    with pytest.raises(cs.ModelError, match="link 'antenna' on its own is indefinite"):
+        load_urdf(p, floating_base="free", inertia_check="strict")
+    p = write(urdf(heavy, antenna, joint("ja", "base", "antenna"), link("l1"), joint("j1", "base", "l1")))
+    with pytest.raises(cs.ModelError, match=r"body 'antenna': inertia is not positive semi-definite"):
+        load_urdf(p)
+    # welded to the world (fixed base): not part of the dynamics, a note
+    p = write(urdf(heavy, antenna, _fixed("fa", "base", "antenna"), link("l1"), joint("j1", "base", "l1")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = load_urdf(p)
+    assert any("'antenna' is welded to the world" in n for n in model.notes)
+
+
+def test_indefinite_merged_body_is_refused(write):
+    """A link whose negative moment is not outweighed by the body it is fixed to: the
+    merged body is indefinite, an error naming the body and the link (any inertia_check)."""
+    bad = _inertial_link("bad", 1.0, 0.01, -0.05, 0.05)
+    p = write(urdf(link("base"), link("l1"), joint("j1", "base", "l1"), bad, _fixed("fb", "l1", "bad")))
+    for check in ("warn", "strict"):
+        with pytest.raises(cs.ModelError, match=r"body 'l1'.*links \['l1', 'bad'\]: inertia is not positive "
+                                                r"semi-definite .*indefinite links: link 'bad'"):
+            load_urdf(p, inertia_check=check)
+
+
+def test_rounding_noise_is_clipped_with_a_note(write):
+    """A point mass with rounding noise in its inertia (iCub's legs: [-6e-21, 8e-22, 1.1e-18]
+    beside ~0.1 kg m^2 elsewhere) and a body with a -1e-12 relative moment: clipped, noted."""
+    p = write(urdf(link("base"), _inertial_link("l1", 1.0, 0.1, 0.2, 0.25), joint("j1", "base", "l1"),
+                   _inertial_link("l2", 1.26, -6e-21, 8e-22, 1.1e-18), joint("j2", "l1", "l2", extra=
+                   '<origin xyz="0.3 0 0"/><axis xyz="0 1 0"/>'),
+                   _inertial_link("l3", 1.0, 0.1, 0.1, -1e-13), joint("j3", "l2", "l3", extra='<axis xyz="0 1 0"/>')))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = load_urdf(p)
+    for b in (1, 2):
+        assert np.linalg.eigvalsh(np.asarray(model.inertia[b])).min() >= 0
+        assert any(f"body '{model.body_names[b]}': principal moment" in n and "clipped to 0" in n for n in model.notes)
+    assert describe(model).count("note:") == len(model.notes)
+
+
+def test_inertia_errors_of_links(write):
+    """What no body can survive is refused on the link itself, whatever it is fixed to."""
+    heavy = _inertial_link("base", 43.0, 0.7, 2.0, 2.1)
+    for bad, pattern in [(link("x", m=-1.0), r"link 'x': mass must be finite and >= 0"),
+                         (_inertial_link("x", "nan", 1, 1, 1), r"attribute value='nan' must be finite"),
+                         (_inertial_link("x", 1, "inf", 1, 1), r"attribute ixx='inf' must be finite")]:
+        p = write(urdf(heavy, bad, _fixed("f", "base", "x"), link("l1"), joint("j1", "base", "l1")))
+        with pytest.raises(cs.ModelError, match=pattern):
+            load_urdf(p, floating_base="free")
+    b = cs.ModelBuilder("asym")
+    with pytest.raises(cs.ModelError, match="link 'a': inertia matrix is not symmetric"):
+        b.add_link("a", 1.0, inertia=[[1, 0.1, 0], [0, 1, 0], [0, 0, 1]])
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -232,7 +345,44 @@ def test_package_paths(stl_box, write):
     np.testing.assert_allclose(_mesh_extent(load_urdf(p3)), [0.2, 0.4, 0.6])
 
 
-@pytest.mark.parametrize("filename", ["package://mypkg/../../../../etc/passwd", "../../etc/passwd", "/etc/passwd",
+def test_package_uri_resolution_order(stl_box, write, monkeypatch, tmp_path):
+    """``package://`` through package_dirs, ROS_PACKAGE_PATH, and the directories around
+    the file (a sibling package folder); ``package:///path`` (TALOS full_v2's form) below a
+    package root or an ancestor of the file."""
+    pkgs = str(stl_box / "pkgs")
+    other = tmp_path / "elsewhere" / "urdf"
+    other.mkdir(parents=True)
+    p = str(other / "r.urdf")
+    with open(p, "w") as f:
+        f.write(_mesh_urdf("package://mypkg/meshes/box.stl"))
+    with pytest.warns(cs.ModelWarning, match=r"package://mypkg/meshes/box.stl \(link 'l1': not found\)"):
+        assert load_urdf(p).n_geoms == 0
+    monkeypatch.setenv("ROS_PACKAGE_PATH", os.pathsep.join(["/nonexistent", pkgs]))
+    np.testing.assert_allclose(_mesh_extent(load_urdf(p)), [0.2, 0.4, 0.6])
+    monkeypatch.delenv("ROS_PACKAGE_PATH")
+    # a sibling package of the URDF's package: <root>/robots/r.urdf, <root>/mypkg/meshes
+    p2 = write(_mesh_urdf("package://mypkg/meshes/box.stl", scale="1 1 2"), "pkgs/robots/r.urdf")
+    np.testing.assert_allclose(_mesh_extent(load_urdf(p2)), [0.2, 0.4, 1.2])
+    # package:///<path below a package root>
+    p3 = write(_mesh_urdf("package:///mypkg/meshes/box.stl"), "pkgs/mypkg/urdf/r3.urdf")
+    np.testing.assert_allclose(_mesh_extent(load_urdf(p3)), [0.2, 0.4, 0.6])
+    with open(p, "w") as f:
+        f.write(_mesh_urdf("package:///mypkg/meshes/box.stl"))
+    np.testing.assert_allclose(_mesh_extent(load_urdf(p, package_dirs=[pkgs])), [0.2, 0.4, 0.6])
+    with pytest.warns(cs.ModelWarning, match=r"package://mypkg \(link 'l1': malformed package URI"):
+        load_urdf(write(_mesh_urdf("package://mypkg"), "pkgs/r4.urdf"))
+
+
+def test_missing_mesh_keeps_other_geometry(write):
+    two = urdf(link("base"), link("l1", extra='<collision><geometry><mesh filename="package://nope/a.stl"/></geometry>'
+                                              '</collision><collision><geometry><sphere radius="0.1"/></geometry>'
+                                              '</collision>'), joint("j1", "base", "l1"))
+    with pytest.warns(cs.ModelWarning, match=r"package://nope/a.stl \(link 'l1': not found\)"):
+        model = load_urdf(write(two))
+    assert model.geom_names == ("l1_collision1",) and isinstance(model.geoms[0], cs.Sphere)
+
+
+@pytest.mark.parametrize("filename", ["package:///../../../../etc/passwd", "package://mypkg/../../../../etc/passwd", "../../etc/passwd", "/etc/passwd",
                                       "file:///etc/passwd"])
 def test_mesh_paths_escaping_roots_are_errors(stl_box, write, filename):
     p = write(_mesh_urdf(filename), "pkgs/mypkg/urdf/r.urdf")
@@ -250,7 +400,7 @@ def test_symlink_escape_is_an_error(stl_box, write):
 
 def test_missing_mesh_and_missing_trimesh_warn(write, monkeypatch):
     p = write(_mesh_urdf("package://unknown/x.stl"))
-    with pytest.warns(UserWarning, match=r"not found or not loadable.*package://unknown/x.stl \(link 'l1'\)"):
+    with pytest.warns(cs.ModelWarning, match=r"not found or not loadable.*package://unknown/x.stl \(link 'l1': not found\)"):
         assert load_urdf(p).n_geoms == 0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -289,7 +439,7 @@ def test_mjcf_compile_error_is_wrapped(tmp_path):
     p.write_text('<mujoco>\n<worldbody>\n<body><joint type="screw"/></body></worldbody></mujoco>')
     with pytest.raises(cs.ModelError, match=r"bad\.xml: MuJoCo could not compile the MJCF model: .*screw"):
         load_mjcf(str(p))
-    with pytest.raises(cs.ModelError, match=r"<MJCF string>: MuJoCo could not compile"):
+    with pytest.raises(cs.ModelError, match=r"<MJCF string>:1: malformed XML: no element found"):
         load_mjcf("<mujoco><worldbody><body><geom type='sphere' size='-1'/></body></worldbody>")
     with pytest.raises(cs.ModelError, match=r"nope\.xml: MJCF file not found"):
         load_mjcf(str(tmp_path / "nope.xml"))
@@ -356,6 +506,68 @@ def test_mjcf_chain_ref_anchor_and_ball_match_mujoco():
         np.testing.assert_allclose(cs.mass_matrix(model, jnp.asarray(q)), Mf, atol=1e-12)
         np.testing.assert_allclose(cs.passive_forces(model, jnp.asarray(q), jnp.asarray(v)), d.qfrc_passive, atol=1e-12)
     assert "'hx': revolute" in describe(model) and "ball" in describe(model)
+
+
+def test_mjcf_unsupported_elements_warn_or_refuse():
+    """Tendons, equality constraints and the rest are reported (what is ignored and what
+    that changes); strict=True refuses them."""
+    _mujoco()
+    from cstorm.model.mjcf import load_mjcf
+
+    xml = MJCF.replace("</worldbody>", "</worldbody>\n<tendon><fixed name='coupler'><joint joint='hx' coef='1'/>"
+                       "<joint joint='hz' coef='-1'/></fixed></tendon>\n<equality><joint name='tie' joint1='hx' "
+                       "joint2='hz'/></equality>").replace('<option gravity="0 0 -5"/>',
+                                                          '<option gravity="0 0 -5" viscosity="0.1"/>')
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        model = load_mjcf(xml)
+    (msg,) = [str(x.message) for x in w if issubclass(x.category, cs.ModelWarning)]
+    for s in ("<tendon> ['coupler']", "<equality> ['tie (joint)']", "constraints are not enforced",
+              "fluid forces are not modelled", "strict=True refuses it"):
+        assert s in msg, s
+    assert model.nv == 6
+    with pytest.raises(cs.ModelError, match=r"<MJCF string>: elements cstorm does not model \(strict=True\): "
+                                            r"<tendon> \['coupler'\]"):
+        load_mjcf(xml, strict=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_mjcf(MJCF, strict=True)  # nothing ignored: no warning, no error
+
+
+def test_mjcf_asset_paths_are_confined(tmp_path):
+    """A mesh or include outside the model's directory is refused (as URDF meshes are),
+    before MuJoCo reads it."""
+    _mujoco()
+    trimesh = pytest.importorskip("trimesh")
+    from cstorm.model.mjcf import load_mjcf
+
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(str(outside / "box.stl"))
+    d = tmp_path / "model"
+    d.mkdir()
+    body = ("<worldbody><body><joint type='hinge'/><geom type='mesh' mesh='m'/></body></worldbody></mujoco>")
+    cases = {"rel.xml": "<mujoco><asset><mesh name='m' file='../outside/box.stl'/></asset>" + body,
+             "abs.xml": f"<mujoco><asset><mesh name='m' file='{outside / 'box.stl'}'/></asset>" + body,
+             "meshdir.xml": "<mujoco><compiler meshdir='../outside'/><asset><mesh name='m' file='box.stl'/></asset>"
+                            + body,
+             "include.xml": "<mujoco><include file='../outside/x.xml'/></mujoco>"}
+    for name, text in cases.items():
+        (d / name).write_text(text)
+        with pytest.raises(cs.ModelError, match=rf"{name}:1: <(mesh|include) file=.*outside the model's directory"):
+            load_mjcf(str(d / name))
+    os.symlink(outside / "box.stl", d / "link.stl")
+    (d / "sym.xml").write_text("<mujoco><asset><mesh name='m' file='link.stl'/></asset>" + body)
+    with pytest.raises(cs.ModelError, match="outside the model's directory"):
+        load_mjcf(str(d / "sym.xml"))
+    assert load_mjcf(str(d / "sym.xml"), asset_dirs=[str(outside)]).nv == 1
+    (d / "box.stl").write_bytes((outside / "box.stl").read_bytes())
+    (d / "ok.xml").write_text("<mujoco><asset><mesh name='m' file='box.stl'/></asset>" + body)
+    assert load_mjcf(str(d / "ok.xml")).n_geoms == 1
+    (d / "dtd.xml").write_text('<?xml version="1.0"?>\n<!DOCTYPE m [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n'
+                               "<mujoco/>")
+    with pytest.raises(cs.ModelError, match=r"dtd\.xml:2: DOCTYPE declarations are not allowed"):
+        load_mjcf(str(d / "dtd.xml"))
 
 
 def test_mjcf_accepts_compiled_model():

@@ -7,7 +7,7 @@ and the test-suite do; cstorm never changes global JAX flags on import).
 
 __version__ = "0.1.0"
 
-from .errors import CstormError, ModelError, ShapeError, InputError, DivergenceError, ProblemError
+from .errors import CstormError, ModelError, ModelWarning, ShapeError, InputError, DivergenceError, ProblemError
 from .geometry.shapes import Sphere, Capsule, Box, Cylinder, Plane, ConvexMesh
 from .model import Model, ModelBuilder, Revolute, Prismatic, Free, Ball
 from .model.urdf import load_urdf

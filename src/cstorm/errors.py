@@ -29,3 +29,8 @@ class ProblemError(CstormError, ValueError):
 class ContactParamError(ShapeError):
     """A contact parameter (stiffness, damping, d_on, d_off, friction, v_max, eps) is
     invalid; the message names it. A subclass of `ShapeError`."""
+
+
+class ModelWarning(UserWarning):
+    """A robot model loaded, with something implausible or ignored; the message names the
+    file, body, link or element and says what it changes."""

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 from ..errors import ModelError
 from ..geometry.shapes import Shape
+from .inertia import INERTIA_CHECKS, judge_bodies, link_inertia
 from .joints import JOINT_TYPES, Free, Prismatic, Revolute
 from .model import Model
 
@@ -62,45 +63,6 @@ def make_pose(pose=None, xyz=None, rpy=None, R=None, where="") -> np.ndarray:
     return T
 
 
-def check_inertia(mass, com, inertia, where: str, strict: bool = True):
-    """Validate and normalize mass (float), com (3,), inertia (3, 3) about the CoM.
-
-    ``strict=False`` turns a violated triangle inequality (found in many published
-    URDFs; the dynamics stay well defined) into a warning; non-symmetric or indefinite
-    inertias are errors either way."""
-    m = float(mass)
-    if not np.isfinite(m) or m < 0:
-        raise ModelError(f"{where}: mass must be finite and >= 0, got {mass}")
-    c = np.asarray(com, dtype=float).reshape(-1)
-    if c.shape != (3,) or not np.all(np.isfinite(c)):
-        raise ModelError(f"{where}: centre of mass must be 3 finite numbers, got {com}")
-    I = np.asarray(inertia if inertia is not None else np.zeros((3, 3)), dtype=float)
-    if I.shape == (3,):
-        I = np.diag(I)
-    elif I.shape == (6,):  # ixx ixy ixz iyy iyz izz (URDF order)
-        ixx, ixy, ixz, iyy, iyz, izz = I
-        I = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    if I.shape != (3, 3) or not np.all(np.isfinite(I)):
-        raise ModelError(f"{where}: inertia must be (3,), (6,) or (3, 3) finite numbers, got shape {I.shape}")
-    scale = max(1e-12, np.abs(I).max())
-    if np.abs(I - I.T).max() > 1e-9 * scale:
-        raise ModelError(f"{where}: inertia matrix is not symmetric:\n{I}")
-    I = 0.5 * (I + I.T)
-    ev = np.linalg.eigvalsh(I)
-    tol = 1e-9 * scale + 1e-18  # absolute floor: rounding noise on (near-)zero inertias
-    if ev.min() < -tol:
-        raise ModelError(f"{where}: inertia is not positive semi-definite (principal moments {ev.tolist()})")
-    if ev[2] > ev[0] + ev[1] + max(tol, 1e-6 * scale):
-        msg = (f"{where}: inertia violates the triangle inequality (principal moments {ev.tolist()}: "
-               f"{ev[2]:.6g} > {ev[0]:.6g} + {ev[1]:.6g}); no rigid body has this inertia")
-        if strict:
-            raise ModelError(msg + " (inertia_check='lenient' accepts it with a warning)")
-        warnings.warn(msg + "; accepted (inertia_check='lenient')", stacklevel=4)
-    if m == 0 and ev.max() > tol and scale > 1e-12:
-        pass  # massless link with rotational inertia: allowed (rotors), kept as is
-    return m, c, I
-
-
 @dataclasses.dataclass
 class _Link:
     name: str
@@ -131,11 +93,13 @@ class ModelBuilder:
     """Collects links, joints, collision shapes and frames; `build()` makes a `Model`."""
 
     def __init__(self, name: str = "robot", gravity=(0.0, 0.0, -9.81), source: str = "<builder>",
-                 inertia_check: str = "strict"):
-        """``inertia_check``: ``"strict"`` (an inertia violating the triangle inequality is
-        a `ModelError`) or ``"lenient"`` (a warning)."""
-        if inertia_check not in ("strict", "lenient"):
-            raise ModelError(f"{source}: inertia_check must be 'strict' or 'lenient', got {inertia_check!r}")
+                 inertia_check: str = "warn"):
+        """``inertia_check``: ``"warn"`` (default; ``"lenient"`` is a synonym) loads an
+        implausible but computable inertia (triangle inequality violated) with one
+        `ModelWarning` per body; ``"strict"`` makes it a `ModelError`. What the dynamics
+        cannot survive is an error either way. See `cstorm.model.inertia`."""
+        if inertia_check not in INERTIA_CHECKS:
+            raise ModelError(f"{source}: inertia_check must be one of {list(INERTIA_CHECKS)}, got {inertia_check!r}")
         self.inertia_check = inertia_check
         self.name = name
         self.gravity = np.asarray(gravity, dtype=float)
@@ -156,8 +120,7 @@ class ModelBuilder:
         (3, 3), principal (3,) or URDF-ordered (ixx, ixy, ixz, iyy, iyz, izz)."""
         if name in self.links:
             raise ModelError(f"{self._where('link', name)} is defined twice")
-        m, c, I = check_inertia(mass, com, inertia, self._where("link", name),
-                                strict=getattr(self, "inertia_check", "strict") == "strict")
+        m, c, I = link_inertia(mass, com, inertia, self._where("link", name))
         self.links[name] = _Link(name, m, c, I)
         return self
 
@@ -299,12 +262,12 @@ class ModelBuilder:
         unreached = [n for n in self.links if n not in link_body]
         if unreached:
             raise ModelError(f"{src}: links {unreached} are not connected to the root {root!r} (a cycle?)")
-        # the traversal order must have parents first
         nb = len(bodies)
+        if nb == 0:
+            raise ModelError(f"{src}: the model has no moving joints (every joint is fixed): there are no dynamics to "
+                             "compute; load it with floating_base='free' to move it as one rigid body")
 
         # accumulate inertias in body frames
-        from .. import spatial as sp
-
         Isp = [np.zeros((6, 6)) for _ in range(nb)]
         for ln, L in links.items():
             b = link_body[ln]
@@ -321,6 +284,15 @@ class ModelBuilder:
             else:
                 m_, c_, Ic_ = 0.0, np.zeros(3), Isp[b][:3, :3]
             mass.append(float(m_)), com.append(c_), inertia.append(0.5 * (Ic_ + Ic_.T))
+        body_links: dict[int, list[str]] = {b: [bd["name"]] for b, bd in enumerate(bodies)}
+        body_links[-1] = []
+        for ln in self.links:
+            b = link_body[ln]
+            if b < 0 or ln != bodies[b]["name"]:
+                body_links[b].append(ln)
+        inertia, notes = judge_bodies(src, [bd["name"] for bd in bodies], body_links, mass, inertia,
+                                      {ln: (L.mass, L.inertia) for ln, L in links.items()},
+                                      getattr(self, "inertia_check", "warn"))
 
         jtypes = []
         per_dof = {k: [] for k in ("armature", "damping", "stiffness", "spring_ref", "velocity", "effort")}
@@ -371,9 +343,8 @@ class ModelBuilder:
             effort_limit=f(per_dof["effort"], (nv,)), limit_stiffness=f(self.limit_stiffness),
             limit_margin=f(self.limit_margin), gravity=f(self.gravity, (3,)), geoms=tuple(geom_shapes),
             geom_poses=f(geom_poses, (len(geom_poses), 4, 4)), frame_poses=f(frame_poses, (len(frame_poses), 4, 4)),
+            notes=tuple(notes),
         )
-        if nb == 0:
-            raise ModelError(f"{src}: the model has no moving joints")
         check_nonsingular(model)
         return model
 

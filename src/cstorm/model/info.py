@@ -32,7 +32,8 @@ def describe(model: Model) -> str:
     """A multi-line text: header (sizes, gravity, total mass), then the body tree, each
     body with its joint (name, type, q and v slices, axis, limits, armature, damping,
     spring), mass, CoM, principal inertias, collision shapes and named frames; world
-    geoms and frames at the end. Units SI, angles in rad."""
+    geoms and frames, then the loader's notes (``model.notes``) at the end. Units SI,
+    angles in rad."""
     nb = model.n_bodies
     mass = np.asarray(model.mass)
     com = np.asarray(model.com)
@@ -93,16 +94,23 @@ def describe(model: Model) -> str:
         ev = np.linalg.eigvalsh(0.5 * (inertia[i] + inertia[i].T))
         out.append(f"{ind}  mass {mass[i]:.6g} kg, CoM {_vec(com[i])}, principal inertias {_vec(ev, 6)} kg m^2")
         out += geoms_and_frames(i, ind + "  ")
-        for c in model.children(i):
-            out += body(c, depth + 1)
         return out
 
-    for i in range(nb):
-        if model.parents[i] < 0:
-            lines += body(i, 0)
+    # depth-first pre-order with an explicit stack (no recursion limit on deep chains)
+    children = [[] for _ in range(nb)]
+    for i, p in enumerate(model.parents):
+        if p >= 0:
+            children[p].append(i)
+    stack = [(i, 0) for i in reversed(range(nb)) if model.parents[i] < 0]
+    while stack:
+        i, depth = stack.pop()
+        lines += body(i, depth)
+        stack += [(c, depth + 1) for c in reversed(children[i])]
     world = geoms_and_frames(-1, "  ")
     if world:
         lines += ["", "world (fixed):"] + world
+    if model.notes:
+        lines += ["", "loader notes (repaired or ignored):"] + [f"  note: {n}" for n in model.notes]
     return "\n".join(lines)
 
 

@@ -35,6 +35,12 @@ Conversion
   (half sizes), cylinder (likewise), plane (the half-space below the geom's z = 0),
   mesh (`ConvexMesh` of the compiled vertices). Ellipsoids, height fields and SDFs are
   skipped with a warning.
+- Not modelled, reported by one `cstorm.ModelWarning` (an error with ``strict=True``):
+  ``<tendon>``, ``<equality>``, actuators acting through tendons/sites/bodies or with bias
+  or activation dynamics, joint ``frictionloss``, ``gravcomp``, fluid forces
+  (``density``, ``viscosity``, ``wind``), ``<flex>``, explicit contact ``<pair>`` /
+  ``<exclude>`` (see `unsupported`). Sensors, keyframes, cameras, lights and visual-only
+  geoms do not change the dynamics and are ignored silently.
 
 Velocity conventions (the one trap): cstorm's free joint has ``v = [omega_body;
 v_body]`` (body-frame twist), MuJoCo's ``qvel = [v_world; omega_body]`` (linear
@@ -50,13 +56,13 @@ import warnings
 
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import ModelError, ModelWarning
 from ..geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
 from .builder import ModelBuilder
 from .joints import Free
 from .model import Model
 
-__all__ = ["load_mjcf", "qvel_from_v", "v_from_qvel", "qacc_from_a", "tau_from_qfrc"]
+__all__ = ["load_mjcf", "unsupported", "qvel_from_v", "v_from_qvel", "qacc_from_a", "tau_from_qfrc"]
 
 
 def _import_mujoco():
@@ -97,8 +103,59 @@ def _name(m, mujoco, objtype, i, fallback):
     return n if n else fallback
 
 
-def _compile(path_or_xml, assets, mujoco):
-    """(mjModel, source string for messages)."""
+_FILE_ELEMENTS = {"mesh": "meshdir", "hfield": "meshdir", "skin": "meshdir", "texture": "texturedir",
+                  "include": None, "model": None}
+
+
+def _within(path, root):
+    path, root = os.path.realpath(path), os.path.realpath(root)
+    return path == root or path.startswith(root.rstrip(os.sep) + os.sep)
+
+
+def check_asset_paths(text, source: str, base_dir: str, asset_dirs=(), assets=None, _seen=None):
+    """Refuse an MJCF whose asset files (``<mesh file>``, ``<hfield>``, ``<skin>``,
+    ``<texture>``, ``<include>``, ``<model>``; with ``<compiler meshdir texturedir
+    assetdir>``, as MuJoCo resolves them) resolve, symlinks followed, outside
+    ``base_dir`` (the model file's directory) and ``asset_dirs``. Included files are
+    checked too. The XML is parsed with DTDs refused (`cstorm.model.urdf.parse_xml`).
+    Files given in ``assets`` (in memory) are not looked up on disk. Raises `ModelError`
+    naming the file, line and element."""
+    from .urdf import parse_xml
+
+    seen = set() if _seen is None else _seen
+    root, lines = parse_xml(text, source)
+    roots = [base_dir] + [os.fspath(d) for d in asset_dirs]
+    dirs = {"meshdir": base_dir, "texturedir": base_dir}
+    for comp in root.iter("compiler"):
+        a = comp.get("assetdir")
+        if a is not None:
+            dirs = {k: os.path.join(base_dir, a) for k in dirs}
+        for k in ("meshdir", "texturedir"):
+            if comp.get(k) is not None:
+                dirs[k] = os.path.join(base_dir, comp.get(k))
+    for el in root.iter():
+        if el.tag not in _FILE_ELEMENTS:
+            continue
+        names = [el.get("file")] + ([el.get(f"file{s}") for s in ("right", "left", "up", "down", "front", "back")]
+                                    if el.tag == "texture" else [])
+        for f in names:
+            if not f or (assets and f in assets):
+                continue
+            d = dirs[_FILE_ELEMENTS[el.tag]] if _FILE_ELEMENTS[el.tag] else base_dir
+            path = f if os.path.isabs(f) else os.path.join(d, f)
+            if not any(_within(path, r) for r in roots):
+                raise ModelError(f"{source}:{lines.get(el, '?')}: <{el.tag} file={f!r}> resolves to "
+                                 f"{os.path.realpath(path)!r}, outside the model's directory "
+                                 f"{os.path.realpath(base_dir)!r} (pass its directory in asset_dirs)")
+            if el.tag in ("include", "model") and os.path.isfile(path) and os.path.realpath(path) not in seen:
+                seen.add(os.path.realpath(path))
+                with open(path, "rb") as fh:
+                    check_asset_paths(fh.read(), path, base_dir, asset_dirs, assets, seen)
+
+
+def _compile(path_or_xml, assets, mujoco, asset_dirs=()):
+    """(mjModel, source string for messages). Asset paths are confined first
+    (`check_asset_paths`)."""
     if isinstance(path_or_xml, mujoco.MjModel):
         return path_or_xml, "<mjModel>"
     if isinstance(path_or_xml, (str, os.PathLike)) and not (isinstance(path_or_xml, str)
@@ -107,11 +164,18 @@ def _compile(path_or_xml, assets, mujoco):
         if not os.path.isfile(source):
             raise ModelError(f"{source}: MJCF file not found")
         try:
+            with open(source, "rb") as fh:
+                text = fh.read()
+        except OSError as e:
+            raise ModelError(f"{source}: cannot read MJCF file: {e.strerror or e}") from None
+        check_asset_paths(text, source, os.path.dirname(os.path.abspath(source)), asset_dirs, assets)
+        try:
             return mujoco.MjModel.from_xml_path(source, assets) if assets else mujoco.MjModel.from_xml_path(source), source
         except ValueError as e:
             raise ModelError(f"{source}: MuJoCo could not compile the MJCF model: {str(e).strip()}") from None
     if isinstance(path_or_xml, str):
         source = "<MJCF string>"
+        check_asset_paths(path_or_xml, source, os.getcwd(), asset_dirs, assets)
         try:
             return (mujoco.MjModel.from_xml_string(path_or_xml, assets) if assets
                     else mujoco.MjModel.from_xml_string(path_or_xml)), source
@@ -120,8 +184,55 @@ def _compile(path_or_xml, assets, mujoco):
     raise ModelError(f"load_mjcf: expected a file path, an XML string or a mujoco.MjModel, got {type(path_or_xml).__name__}")
 
 
-def load_mjcf(path_or_xml, *, assets: dict | None = None, inertia_check: str = "strict",
-              collision_only: bool = True) -> Model:
+def _names(m, mujoco, objtype, ids, prefix):
+    return [mujoco.mj_id2name(m, objtype, int(i)) or f"{prefix}{int(i)}" for i in ids]
+
+
+def unsupported(m, mujoco) -> list[str]:
+    """What the compiled model ``m`` holds that cstorm does not model, one sentence each
+    (the elements, by name, and what ignoring them changes); empty when nothing."""
+    O, out = mujoco.mjtObj, []
+    if m.ntendon:
+        out.append(f"<tendon> {_names(m, mujoco, O.mjOBJ_TENDON, range(m.ntendon), 'tendon')}: tendon stiffness, "
+                   "damping, limits and lengths are not modelled (the joints they couple move independently)")
+    if m.neq:
+        kinds = [mujoco.mjtEq(int(t)).name.replace("mjEQ_", "").lower() for t in m.eq_type]
+        names = _names(m, mujoco, O.mjOBJ_EQUALITY, range(m.neq), "equality")
+        out.append(f"<equality> {[f'{n} ({k})' for n, k in zip(names, kinds)]}: constraints are not enforced "
+                   "(welded or coupled parts move freely)")
+    JOINT = int(mujoco.mjtTrn.mjTRN_JOINT)
+    other_trn = [a for a in range(m.nu) if int(m.actuator_trntype[a]) != JOINT]
+    if other_trn:
+        out.append(f"actuators {_names(m, mujoco, O.mjOBJ_ACTUATOR, other_trn, 'actuator')} act through tendons, "
+                   "sites or bodies: not modelled (no effort limit, no actuation from them)")
+    biased = [a for a in range(m.nu) if int(m.actuator_biastype[a]) != int(mujoco.mjtBias.mjBIAS_NONE)
+              or int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE)]
+    if biased:
+        out.append(f"actuators {_names(m, mujoco, O.mjOBJ_ACTUATOR, biased, 'actuator')} have bias terms or "
+                   "activation dynamics (position/velocity servos, filters): cstorm's controls are joint torques; "
+                   "their servo forces are not modelled")
+    fric = [j for j in range(m.njnt) if np.any(m.dof_frictionloss[m.jnt_dofadr[j]: m.jnt_dofadr[j] + 1] > 0)]
+    if fric:
+        out.append(f"joint frictionloss on {_names(m, mujoco, O.mjOBJ_JOINT, fric, 'joint')}: dry joint friction "
+                   "is not modelled")
+    grav = [b for b in range(1, m.nbody) if m.body_gravcomp[b] != 0]
+    if grav:
+        out.append(f"gravcomp on bodies {_names(m, mujoco, O.mjOBJ_BODY, grav, 'body')}: gravity compensation is "
+                   "not modelled")
+    if m.opt.density > 0 or m.opt.viscosity > 0 or np.any(m.opt.wind != 0):
+        out.append(f"<option density={m.opt.density:g} viscosity={m.opt.viscosity:g} "
+                   f"wind={[float(x) for x in m.opt.wind]}>: "
+                   "fluid forces are not modelled")
+    if getattr(m, "nflex", 0):
+        out.append(f"{m.nflex} <flex> elements (deformable bodies) are not modelled")
+    if m.npair or m.nexclude:
+        out.append(f"<contact> pairs ({m.npair}) and excludes ({m.nexclude}): cstorm's contact pairs come from its "
+                   "Environment, not from these")
+    return out
+
+
+def load_mjcf(path_or_xml, *, assets: dict | None = None, inertia_check: str = "warn",
+              collision_only: bool = True, strict: bool = False, asset_dirs=()) -> Model:
     """Load an MJCF model into a `Model` through MuJoCo's compiler.
 
     Args:
@@ -129,15 +240,28 @@ def load_mjcf(path_or_xml, *, assets: dict | None = None, inertia_check: str = "
             ``mujoco.MjModel``.
         assets: optional ``{filename: bytes}`` for ``MjModel.from_xml_*`` (meshes,
             included files of an XML string).
-        inertia_check: ``"strict"`` or ``"lenient"`` (see `ModelBuilder`).
+        inertia_check: ``"warn"`` or ``"strict"`` (see `cstorm.model.inertia`).
         collision_only: True keeps only geoms with ``contype`` or ``conaffinity`` set.
+        strict: True makes what cstorm does not model (`unsupported`: tendons, equality
+            constraints, actuators other than joint motors, frictionloss, gravcomp, fluid
+            forces, flex, explicit contact pairs) and unsupported geom types an error, and
+            implies ``inertia_check="strict"``; False (default) loads the rest with one
+            `cstorm.ModelWarning` listing what was ignored and what that changes.
+        asset_dirs: further directories that asset files (meshes, textures, includes)
+            may lie in, besides the model file's (the working directory for an XML
+            string); a path resolving outside them is a `cstorm.ModelError`.
     Returns: the `Model` (q order and values = MuJoCo's qpos; see the module docstring
         for frames and the free-joint velocity convention).
     Raises: `cstorm.ModelError` (compile errors wrapped, naming the file);
         ImportError when MuJoCo is not installed.
     """
     mujoco = _import_mujoco()
-    m, source = _compile(path_or_xml, assets, mujoco)
+    m, source = _compile(path_or_xml, assets, mujoco, asset_dirs)
+    if strict:
+        inertia_check = "strict"
+    ignored = unsupported(m, mujoco)
+    if ignored and strict:
+        raise ModelError(f"{source}: elements cstorm does not model (strict=True): " + "; ".join(ignored))
     O = mujoco.mjtObj
     JT = mujoco.mjtJoint
     GT = mujoco.mjtGeom
@@ -253,7 +377,13 @@ def load_mjcf(path_or_xml, *, assets: dict | None = None, inertia_check: str = "
             raise ModelError(f"{source}: geom {gname!r} of body {body_names[bi]!r}: {e}") from None
         b.add_geom(body_names[bi], shape, pose=origin[bi] @ _pose(m.geom_pos[g], m.geom_quat[g]), name=gname)
     if skipped:
-        warnings.warn(f"{source}: geoms of unsupported types skipped: {skipped}", stacklevel=2)
+        msg = f"geoms of unsupported types skipped (no contact through them): {skipped}"
+        if strict:
+            raise ModelError(f"{source}: {msg} (strict=True)")
+        ignored.append(msg)
+    if ignored:
+        warnings.warn(f"{source}: loaded without what cstorm does not model (strict=True refuses it): "
+                      + "; ".join(ignored), ModelWarning, stacklevel=2)
     for s in range(m.nsite):
         bi = int(m.site_bodyid[s])
         b.add_frame(_name(m, mujoco, O.mjOBJ_SITE, s, f"{body_names[bi]}_site{s}"), body_names[bi],

@@ -15,7 +15,8 @@ matrix diagonal), ``damping`` (N m s/rad or N s/m), ``stiffness`` with ``spring_
 limits ``q_lower``/``q_upper`` have length nq (+-inf where unlimited). Collision
 geometry: ``geoms`` (shapes) attached to ``geom_bodies`` (-1: the world) at
 ``geom_poses`` (ng, 4, 4) (body from shape). Named frames (links merged by fixed joints,
-MJCF sites) live in ``frame_bodies``/``frame_poses``.
+MJCF sites) live in ``frame_bodies``/``frame_poses``. ``notes`` lists what the loader
+repaired or ignored (rounding noise clipped, placeholder links), one sentence each.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from .joints import Joint, Free, Ball
 @pytree_dataclass(
     meta=("body_names", "joint_names", "parents", "joints", "q_starts", "v_starts", "geom_names", "geom_bodies",
           "frame_names", "frame_bodies"),
-    labels=("name", "source"),
+    labels=("name", "source", "notes"),
 )
 class Model:
     # --- static -----------------------------------------------------------------
@@ -68,6 +69,8 @@ class Model:
     geoms: tuple  # shapes (pytrees)
     geom_poses: jnp.ndarray  # (ng, 4, 4) body from shape
     frame_poses: jnp.ndarray  # (nf, 4, 4) body from frame
+    # --- informational (does not key compilation) ------------------------------------
+    notes: tuple = ()  # what the loader repaired or ignored (strings; `cstorm info` prints them)
 
     # --- sizes ---------------------------------------------------------------------
     @property

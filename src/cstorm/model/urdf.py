@@ -42,7 +42,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import ModelError, ModelWarning
 from ..geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Sphere
 from .builder import ModelBuilder, rpy_to_matrix
 from .model import Model
@@ -164,32 +164,65 @@ def _within(path, root):
     return path == root or path.startswith(root.rstrip(os.sep) + os.sep)
 
 
+def _package_roots(package_dirs):
+    """``[(root, pkg or None)]`` from ``package_dirs`` then ``ROS_PACKAGE_PATH``: a dict
+    entry maps one package name to its directory; a list entry is a directory that holds
+    package folders (or is one)."""
+    roots: list[tuple[str, str | None]] = []
+    if isinstance(package_dirs, dict):
+        roots += [(os.fspath(d), pkg) for pkg, d in package_dirs.items()]
+    elif isinstance(package_dirs, (str, os.PathLike)):
+        roots.append((os.fspath(package_dirs), None))
+    elif package_dirs is not None:
+        roots += [(os.fspath(d), None) for d in package_dirs]
+    roots += [(d, None) for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if d]
+    return roots
+
+
 def _resolve_mesh(filename, urdf_dir, package_dirs, mesh_dirs, ctx, el, what):
-    """Absolute path of a mesh file, or None when it cannot be found (caller warns).
-    Raises ModelError when the path escapes the directory it is looked up in."""
-    cands: list[tuple[str, str]] = []  # (candidate path, allowed root)
+    """``(absolute path or None, why not found)``. Raises ModelError when the path escapes
+    the directory it is looked up in (``..``, absolute parts, symlinks).
+
+    ``package://pkg/rest``: ``<dir>/rest`` for ``package_dirs={"pkg": dir}``, then
+    ``<root>/pkg/rest`` (or ``<root>/rest`` when root is named pkg) for each directory of
+    a ``package_dirs`` list and of ``ROS_PACKAGE_PATH``, then for each directory ``d``
+    around the file (the URDF's folder and its ancestors) ``d/rest`` when ``d`` is named
+    pkg and ``d/pkg/rest``. ``package:///rest`` (no package name) is ``<root>/rest`` for
+    the same roots and ancestors."""
+    cands: list[tuple[str, str]] = []  # (candidate path, the root it must stay in)
+    ancestors = []
+    d = os.path.abspath(urdf_dir)
+    while True:
+        ancestors.append(d)
+        parent = os.path.dirname(d)
+        if parent == d:
+            break
+        d = parent
     if filename.startswith("package://"):
         rest = filename[len("package://"):]
-        pkg, _, sub = rest.partition("/")
-        if not pkg or not sub:
-            raise ctx.err(el, f"malformed package URI {filename!r}", what)
-        if isinstance(package_dirs, dict):
-            if pkg in package_dirs:
-                cands.append((os.path.join(package_dirs[pkg], sub), package_dirs[pkg]))
-        elif package_dirs is not None:
-            for root in ([package_dirs] if isinstance(package_dirs, (str, os.PathLike)) else package_dirs):
-                root = os.fspath(root)
+        if rest.startswith("/"):  # package:///path: a path below a package root
+            sub = rest.lstrip("/")
+            if not sub:
+                return None, "malformed package URI (no path)"
+            for root, pkg in _package_roots(package_dirs):
+                cands.append((os.path.join(root, sub), root))
+            cands += [(os.path.join(a, sub), a) for a in ancestors]
+        else:
+            pkg, _, sub = rest.partition("/")
+            if not sub:
+                return None, "malformed package URI (no path after the package name)"
+            for root, name in _package_roots(package_dirs):
+                if name is not None:
+                    if name == pkg:
+                        cands.append((os.path.join(root, sub), root))
+                    continue
                 if os.path.basename(os.path.normpath(root)) == pkg:
                     cands.append((os.path.join(root, sub), root))
                 cands.append((os.path.join(root, pkg, sub), os.path.join(root, pkg)))
-        d = os.path.abspath(urdf_dir)
-        while True:
-            if os.path.basename(d) == pkg:
-                cands.append((os.path.join(d, sub), d))
-            parent = os.path.dirname(d)
-            if parent == d:
-                break
-            d = parent
+            for a in ancestors:
+                if os.path.basename(a) == pkg:
+                    cands.append((os.path.join(a, sub), a))
+                cands.append((os.path.join(a, pkg, sub), os.path.join(a, pkg)))
     else:
         path = filename[len("file://"):] if filename.startswith("file://") else filename
         roots = [urdf_dir] + [os.fspath(m) for m in (mesh_dirs or ())]
@@ -206,8 +239,8 @@ def _resolve_mesh(filename, urdf_dir, package_dirs, mesh_dirs, ctx, el, what):
                           f"{os.path.realpath(root)!r}", what)
     for path, _ in cands:
         if os.path.isfile(path):
-            return os.path.realpath(path)
-    return None
+            return os.path.realpath(path), ""
+    return None, "not found"
 
 
 def mesh_hull_vertices(path, scale=(1.0, 1.0, 1.0)):
@@ -215,7 +248,10 @@ def mesh_hull_vertices(path, scale=(1.0, 1.0, 1.0)):
     Needs ``trimesh``; raises ImportError without it."""
     import trimesh
 
-    mesh = trimesh.load(path, force="mesh", process=False)
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except ImportError as e:  # a format plugin (pycollada for .dae) is missing, not trimesh itself
+        raise RuntimeError(f"reading this format needs a package trimesh could not import ({e})") from None
     v = np.asarray(mesh.vertices, dtype=float) * np.asarray(scale, dtype=float)
     if len(v) >= 4:
         try:
@@ -228,7 +264,7 @@ def mesh_hull_vertices(path, scale=(1.0, 1.0, 1.0)):
 
 # ------------------------------------------------------------------------ loader
 def load_urdf(path, floating_base: str | None = None, package_dirs=None, mesh_dirs=None,
-              load_meshes: bool = True, inertia_check: str = "strict") -> Model:
+              load_meshes: bool = True, inertia_check: str = "warn") -> Model:
     """Load a URDF file into a `Model`.
 
     Args:
@@ -307,9 +343,9 @@ def load_urdf(path, floating_base: str | None = None, package_dirs=None, mesh_di
                         continue
                     fname = ctx.attr(g, "filename", gwhat)
                     scale = ctx.floats(g, "scale", 3, gwhat, default=(1.0, 1.0, 1.0))
-                    mpath = _resolve_mesh(fname, urdf_dir, package_dirs, mesh_dirs, ctx, g, gwhat)
+                    mpath, why = _resolve_mesh(fname, urdf_dir, package_dirs, mesh_dirs, ctx, g, gwhat)
                     if mpath is None:
-                        missing_meshes.append(f"{fname} (link {name!r})")
+                        missing_meshes.append(f"{fname} (link {name!r}: {why})")
                         continue
                     try:
                         verts = mesh_hull_vertices(mpath, scale)
@@ -379,10 +415,12 @@ def load_urdf(path, floating_base: str | None = None, package_dirs=None, mesh_di
 
     if no_trimesh_links:
         warnings.warn(f"{source}: mesh collision geometry skipped on links {sorted(set(no_trimesh_links))}: "
-                      "install trimesh (pip install 'cstorm[mesh]') to load meshes as convex hulls", stacklevel=2)
+                      "install trimesh (pip install 'cstorm[mesh]') to load meshes as convex hulls", ModelWarning,
+                      stacklevel=2)
     if missing_meshes:
-        warnings.warn(f"{source}: mesh files not found or not loadable, collision geometry skipped: "
-                      f"{missing_meshes} (pass package_dirs / mesh_dirs)", stacklevel=2)
+        warnings.warn(f"{source}: mesh files not found or not loadable, that collision geometry skipped (the links "
+                      f"keep their other shapes): {missing_meshes} (pass package_dirs, set ROS_PACKAGE_PATH, or "
+                      "mesh_dirs)", ModelWarning, stacklevel=2)
     if mimics:
-        warnings.warn(f"{source}: <mimic> is not modelled; joints {mimics} are independent DoFs", stacklevel=2)
+        warnings.warn(f"{source}: <mimic> is not modelled; joints {mimics} are independent DoFs", ModelWarning, stacklevel=2)
     return b.build(floating_base)

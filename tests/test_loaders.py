@@ -576,3 +576,56 @@ def test_mjcf_accepts_compiled_model():
 
     model = load_mjcf(mujoco.MjModel.from_xml_string(MJCF))
     assert model.nq == 1 + 1 + 1 + 4
+
+
+# ----------------------------------------------------------------------------- big and deep trees
+def _chain_urdf(n):
+    parts = [link("l0")]
+    for i in range(1, n):
+        parts += [link(f"l{i}", m=0.1, i=1e-4),
+                  joint(f"j{i}", f"l{i - 1}", f"l{i}", extra='<origin xyz="0 0 -0.1"/><axis xyz="0 1 0"/>')]
+    return urdf(*parts, name="chain")
+
+
+def test_deep_chain_loads_and_is_described(write):
+    """3,000 links in a chain: no recursion limit in loading, checking or describing."""
+    t = time.time()
+    model = load_urdf(write(_chain_urdf(3000)))
+    text = describe(model)
+    assert model.nv == 2999 and "body 'l2999' (#2998, parent l2998)" in text and "[depth 2998]" in text
+    assert time.time() - t < 60
+
+
+def test_model_too_big_for_memory_is_refused_before_allocating(monkeypatch):
+    import cstorm.model.builder as B
+
+    monkeypatch.setattr(B, "_available_memory", lambda: 10 * 2**20)
+    b = cs.ModelBuilder("chain")
+    parent = None
+    for i in range(1000):
+        b.add_body(f"l{i}", parent, axis=(0, 1, 0), mass=0.1, com=(0, 0, -0.05), inertia=(1e-4, 1e-4, 1e-5))
+        parent = f"l{i}"
+    with pytest.raises(cs.ModelError, match=r"<builder>: the model has 1000 bodies and nv = 1000: its dense mass "
+                                            r"matrix .* need ~0\.0 GiB, more than the 0\.0 GiB of memory available"):
+        b.build()
+    monkeypatch.undo()
+    assert b.build().nv == 1000
+
+
+def test_singular_and_indefinite_mass_matrix_are_named():
+    """A joint moving nothing with inertia about its axis; two coincident parallel hinges
+    moving one body (every diagonal entry positive, M singular)."""
+    b = cs.ModelBuilder("s")
+    b.add_body("a", None, axis=(0, 0, 1), mass=1.0, com=(0.3, 0, 0), inertia=(0.01, 0.01, 0.01))
+    b.add_body("b", "a", axis=(1, 0, 0), mass=1.0, com=(0.3, 0, 0), inertia=(0, 0, 0))
+    with pytest.raises(cs.ModelError, match=r"joint 'b' moves a subtree with no mass or no inertia about its axis "
+                                            r"\(body 'b'\).*add armature"):
+        b.build()
+    b = cs.ModelBuilder("d")
+    b.add_link("m0")
+    b.add_body("a", "m0", axis=(0, 0, 1))
+    b.add_body("b", "a", axis=(0, 0, 1), mass=1.0, com=(0.3, 0, 0), inertia=(0.01, 0.01, 0.01))
+    with pytest.raises(cs.ModelError, match=r"not positive definite at the neutral configuration: joint 'a'"):
+        b.build()
+    b.joints["a"].armature = 0.1
+    assert b.build().nv == 2

@@ -20,6 +20,7 @@ Units SI; angles in rad; ``rpy`` is URDF's fixed-axis roll-pitch-yaw, R = Rz(y) 
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 
 import numpy as np
@@ -294,6 +295,10 @@ class ModelBuilder:
                                       {ln: (L.mass, L.inertia) for ln, L in links.items()},
                                       getattr(self, "inertia_check", "warn"))
 
+        depth = [0] * nb
+        for b, bd in enumerate(bodies):
+            depth[b] = 1 + (depth[bd["parent"]] if bd["parent"] >= 0 else 0)
+        check_size(src, nb, sum(JOINT_TYPES[bd["joint"].type].nv for bd in bodies), sum(depth))
         jtypes = []
         per_dof = {k: [] for k in ("armature", "damping", "stiffness", "spring_ref", "velocity", "effort")}
         q_lower, q_upper, q_starts, v_starts = [], [], [], []
@@ -351,25 +356,57 @@ class ModelBuilder:
 
 def check_nonsingular(model: Model):
     """Raise `ModelError` if some joint moves a subtree with no mass or no inertia about
-    its axis (the mass matrix would be singular). Checked at the neutral configuration
-    with armature included."""
-    M = _np_mass_matrix(model, model.neutral())
-    if not np.all(np.isfinite(M)):
+    its axis, or the mass matrix is otherwise not positive definite. Checked at the
+    neutral configuration with armature included, in O(n_bodies) time and memory: the
+    mass matrix's diagonal ``S_i^T Ic_i S_i`` (composite inertias) and the pivots
+    ``D_i = S_i^T IA_i S_i`` of its tree factorization (articulated-body inertias,
+    Featherstone RBDA 7.3), which are all positive iff M is positive definite (here: above
+    1e-12 of the joint's diagonal entry, so that rounding does not hide a singular M)."""
+    q = model.neutral()
+    jR, jp, ax = np.asarray(model.joint_R), np.asarray(model.joint_p), np.asarray(model.axis)
+    mass, com, inertia = np.asarray(model.mass), np.asarray(model.com), np.asarray(model.inertia)
+    arm = np.asarray(model.armature)
+    nb = model.n_bodies
+    oR, op, Sw, Iw = [], [], [], []
+    for i, (j, par) in enumerate(zip(model.joints, model.parents)):
+        s = model.q_starts[i]
+        RJ, pJ = _np_joint_transform(j, ax[i], q[s: s + j.nq])
+        R, p = jR[i] @ RJ, jR[i] @ pJ + jp[i]
+        if par >= 0:
+            R, p = oR[par] @ R, oR[par] @ p + op[par]
+        oR.append(R), op.append(p)
+        Sw.append(_np_Ad(R, p) @ _np_motion_subspace(j, ax[i]))
+        Iw.append(_np_transform_inertia(R, p, _np_spatial_inertia(mass[i], com[i], inertia[i])))
+    Ic = [I.copy() for I in Iw]
+    for i in reversed(range(nb)):
+        if model.parents[i] >= 0:
+            Ic[model.parents[i]] += Ic[i]
+    arms = [arm[model.v_starts[i]: model.v_starts[i] + model.joints[i].nv] for i in range(nb)]
+    diag = np.concatenate([np.einsum("ak,ab,bk->k", Sw[i], Ic[i], Sw[i]) + arms[i] for i in range(nb)])
+    if not np.all(np.isfinite(diag)):
         raise ModelError(f"{model.source}: the mass matrix has NaN/inf entries; check inertias")
-    scale = max(1.0, np.abs(M).max())
+    scale = max(1.0, diag.max())  # |M_jk| <= sqrt(M_jj M_kk): the diagonal bounds M
     dof_joint = model.dof_joint()
     for k in range(model.nv):
-        if M[k, k] <= 1e-12 * scale:
+        if diag[k] <= 1e-12 * scale:
             j = dof_joint[k]
             raise ModelError(
                 f"{model.source}: joint {model.joint_names[j]!r} moves a subtree with no mass or no inertia about "
                 f"its axis (body {model.body_names[j]!r}): the dynamics are singular. Give a link in that subtree "
                 "an <inertial>, or add armature to the joint."
             )
-    try:
-        np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        raise ModelError(f"{model.source}: the mass matrix is not positive definite at the neutral configuration") from None
+    IA = Iw
+    for i in reversed(range(nb)):
+        U = IA[i] @ Sw[i]
+        D = Sw[i].T @ U + np.diag(arms[i])
+        if not np.linalg.eigvalsh(0.5 * (D + D.T)).min() > 1e-12 * diag[model.v_starts[i]: model.v_starts[i] + len(D)].max():
+            raise ModelError(
+                f"{model.source}: the mass matrix is not positive definite at the neutral configuration: joint "
+                f"{model.joint_names[i]!r} (body {model.body_names[i]!r}) adds no inertia that the joints below it "
+                "do not already move (its articulated-body pivot is not positive); give its subtree inertia about "
+                "its axis, or add armature")
+        if model.parents[i] >= 0:
+            IA[model.parents[i]] = IA[model.parents[i]] + IA[i] - U @ np.linalg.solve(D, U.T)
 
 
 # --- host-side (numpy) helpers: model construction stays fast for big trees (no per-op JAX
@@ -430,34 +467,45 @@ def _np_joint_transform(joint, axis, qj):
     raise TypeError(f"no host-side transform for joint type {type(joint).__name__}")
 
 
-def _np_mass_matrix(model: Model, q) -> np.ndarray:
-    """Joint-space mass matrix (nv, nv) at q, numpy (composite inertias in world axes):
-    ``M[j, i] = S_j^T Ic_i S_i`` for j an ancestor of i (or i), armature on the diagonal."""
-    q = np.asarray(q, dtype=float)
-    jR, jp, ax = np.asarray(model.joint_R), np.asarray(model.joint_p), np.asarray(model.axis)
-    mass, com, inertia = np.asarray(model.mass), np.asarray(model.com), np.asarray(model.inertia)
-    nb = model.n_bodies
-    oR, op, Sw, Iw = [], [], [], []
-    for i, (j, par) in enumerate(zip(model.joints, model.parents)):
-        s = model.q_starts[i]
-        RJ, pJ = _np_joint_transform(j, ax[i], q[s: s + j.nq])
-        R, p = jR[i] @ RJ, jR[i] @ pJ + jp[i]
-        if par >= 0:
-            R, p = oR[par] @ R, oR[par] @ p + op[par]
-        oR.append(R), op.append(p)
-        Sw.append(_np_Ad(R, p) @ np.asarray(j.motion_subspace(jnp.asarray(ax[i]))))
-        Iw.append(_np_transform_inertia(R, p, _np_spatial_inertia(mass[i], com[i], inertia[i])))
-    for i in reversed(range(nb)):
-        if model.parents[i] >= 0:
-            Iw[model.parents[i]] = Iw[model.parents[i]] + Iw[i]
-    M = np.zeros((model.nv, model.nv))
-    for i in range(nb):
-        si, ni = model.v_starts[i], model.joints[i].nv
-        F = Iw[i] @ Sw[i]
-        j = i
-        while j >= 0:
-            sj, nj = model.v_starts[j], model.joints[j].nv
-            M[sj: sj + nj, si: si + ni] = Sw[j].T @ F
-            M[si: si + ni, sj: sj + nj] = M[sj: sj + nj, si: si + ni].T
-            j = model.parents[j]
-    return M + np.diag(np.asarray(model.armature))
+def _np_motion_subspace(joint, axis):
+    """(6, joint.nv) motion subspace in the joint's child frame, numpy (`Joint.motion_subspace`)."""
+    from .joints import Ball
+
+    a = np.asarray(axis, dtype=float)
+    if isinstance(joint, Revolute):
+        return np.concatenate([a, np.zeros(3)])[:, None]
+    if isinstance(joint, Prismatic):
+        return np.concatenate([np.zeros(3), a])[:, None]
+    if isinstance(joint, Free):
+        return np.eye(6)
+    if isinstance(joint, Ball):
+        return np.concatenate([np.eye(3), np.zeros((3, 3))])
+    return np.asarray(joint.motion_subspace(jnp.asarray(a)))
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to this process (Linux MemAvailable), or None."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_size(source: str, n_bodies: int, nv: int, depth_sum: int):
+    """Refuse, before allocating it, a model whose dense (nv, nv) mass matrix (the
+    dynamics' and this builder's check, ~3 copies of 8 nv^2 bytes) and ancestor index
+    lists (8 bytes per body and ancestor) need more memory than is available."""
+    need = 3 * 8 * nv * nv + 8 * depth_sum
+    avail = _available_memory()
+    if avail is not None and need > avail:
+        raise ModelError(
+            f"{source}: the model has {n_bodies} bodies and nv = {nv}: its dense mass matrix and the tree's ancestor "
+            f"lists need ~{need / 2**30:.1f} GiB, more than the {avail / 2**30:.1f} GiB of memory available; cstorm's "
+            "dynamics work with the dense mass matrix, so a model this large cannot be used on this machine")

@@ -9,6 +9,8 @@ from .model import Model
 
 __all__ = ["describe"]
 
+MAX_INDENT = 24
+
 
 def _vec(x, prec=4):
     return np.array2string(np.asarray(x, dtype=float), precision=prec, suppress_small=True, separator=", ")
@@ -45,6 +47,7 @@ def describe(model: Model) -> str:
     vel, eff = np.asarray(model.velocity_limit), np.asarray(model.effort_limit)
     geom_poses = np.asarray(model.geom_poses)
     frame_poses = np.asarray(model.frame_poses)
+    joint_R, joint_p = np.asarray(model.joint_R), np.asarray(model.joint_p)
 
     lines = [
         f"model {model.name!r}  (source: {model.source})",
@@ -64,7 +67,8 @@ def describe(model: Model) -> str:
         return out
 
     def body(i, depth):
-        ind = "  " * depth
+        # indentation shows the tree up to depth 24; deeper bodies (long chains) say their depth
+        ind = "  " * min(depth, MAX_INDENT) + (f"[depth {depth}] " if depth > MAX_INDENT else "")
         j = model.joints[i]
         qs, vs = model.q_starts[i], model.v_starts[i]
         parent = "world" if model.parents[i] < 0 else model.body_names[model.parents[i]]
@@ -90,7 +94,7 @@ def describe(model: Model) -> str:
             extras.append(f"effort limit {eff[vs]:.4g}")
         if extras:
             out.append(f"{ind}    " + ", ".join(extras))
-        out.append(f"{ind}  placement in parent: {_pose(_homog(model, i))}")
+        out.append(f"{ind}  placement in parent: {_pose(_homog(joint_R[i], joint_p[i]))}")
         ev = np.linalg.eigvalsh(0.5 * (inertia[i] + inertia[i].T))
         out.append(f"{ind}  mass {mass[i]:.6g} kg, CoM {_vec(com[i])}, principal inertias {_vec(ev, 6)} kg m^2")
         out += geoms_and_frames(i, ind + "  ")
@@ -114,8 +118,8 @@ def describe(model: Model) -> str:
     return "\n".join(lines)
 
 
-def _homog(model, i):
+def _homog(R, p):
     T = np.eye(4)
-    T[:3, :3] = np.asarray(model.joint_R[i])
-    T[:3, 3] = np.asarray(model.joint_p[i])
+    T[:3, :3] = R
+    T[:3, 3] = p
     return T

@@ -7,6 +7,7 @@ import pytest
 
 from cstorm.cli import main
 
+EXAMPLE = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml")
 
 def test_info_json(capsys):
     assert main(["info", "tumbler", "--json"]) == 0
@@ -25,6 +26,68 @@ def test_bad_model_exits_2(capsys):
     assert main(["info", "no_such_robot.urdf", "--json"]) == 2
     out = json.loads(capsys.readouterr().out)
     assert out["success"] is False and "no_such_robot.urdf" in out["message"]
+
+
+def test_info_of_a_shipped_problem_and_a_problem_file(capsys):
+    """`cstorm info acrobot` names the robot of the shipped problem, as `cstorm solve
+    acrobot` solves it; a TOML problem file names its robot too."""
+    assert main(["info", "acrobot", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [b["joint"] for b in out["bodies"]] == ["shoulder", "elbow"]
+    assert main(["info", EXAMPLE]) == 0
+    assert "joint 'elbow': revolute" in capsys.readouterr().out
+    assert main(["info", "no_such_thing", "--json"]) == 2
+    msg = json.loads(capsys.readouterr().out)["message"]
+    assert "shipped robot" in msg and "shipped problem" in msg and "acrobot" in msg
+
+
+_LINK = ('<link name="{n}"><inertial><mass value="1"/><inertia ixx="{i}" iyy="{i}" izz="{z}" ixy="0" ixz="0" '
+         'iyz="0"/></inertial>{extra}</link>')
+
+
+def _urdf(l1_extra="", izz=0.01):
+    return ('<?xml version="1.0"?>\n<robot name="r">' + _LINK.format(n="base", i=0.01, z=0.01, extra="")
+            + _LINK.format(n="l1", i=0.001, z=izz, extra=l1_extra)
+            + '<joint name="j1" type="continuous"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/></joint>'
+            '</robot>')
+
+
+def test_info_strict_and_warnings(tmp_path):
+    """An implausible inertia: loaded, one warning on stderr (exit 0); --strict: exit 2 with
+    one JSON object naming file and body, no traceback. A cycle: exit 2 naming the joints."""
+    p = tmp_path / "r.urdf"
+    p.write_text(_urdf(izz=0.01))
+    rc, stdout, stderr = _run(["info", str(p), "--json"])
+    assert rc == 0 and _one_json(stdout)["nv"] == 1
+    assert "cstorm info: warning:" in stderr and "body 'l1': implausible inertia" in stderr
+    rc, stdout, stderr = _run(["info", str(p), "--strict", "--json"])
+    r = _one_json(stdout)
+    assert rc == 2 and r["error"] == "ModelError" and f"{p}: body 'l1': implausible inertia" in r["message"]
+    assert "Traceback" not in stderr
+    p.write_text(_urdf().replace('<child link="l1"/>', '<child link="base"/>'))
+    rc, stdout, stderr = _run(["info", str(p), "--json"])
+    assert rc == 2 and "'base'" in _one_json(stdout)["message"]
+    assert "Traceback" not in stderr
+
+
+def test_info_package_dirs(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    for pkg, ext in (("pa", (0.2, 0.2, 0.2)), ("pb", (0.4, 0.4, 0.4))):
+        d = tmp_path / "roots" / pkg / "meshes"
+        d.mkdir(parents=True)
+        trimesh.creation.box(extents=ext).export(str(d / "m.stl"))
+    col = ('<collision><geometry><mesh filename="package://pa/meshes/m.stl"/></geometry></collision>'
+           '<collision><geometry><mesh filename="package://pb/meshes/m.stl"/></geometry></collision>')
+    p = tmp_path / "robot" / "r.urdf"
+    p.parent.mkdir()
+    p.write_text(_urdf(l1_extra=col, izz=0.0015))
+    rc, stdout, stderr = _run(["info", str(p), "--json"])
+    assert rc == 0 and _one_json(stdout)["geoms"] == [] and "package://pa/meshes/m.stl (link 'l1': not found)" in stderr
+    rc, stdout, stderr = _run(["info", str(p), "--json", "--package-dir", str(tmp_path / "roots" / "pa"),
+                               "--package-dir", str(tmp_path / "roots")])
+    assert rc == 0 and len(_one_json(stdout)["geoms"]) == 2 and "warning" not in stderr
+    rc, stdout, _ = _run(["info", str(p), "--json", "--package-dir", str(tmp_path / "nowhere")])
+    assert rc == 2 and "--package-dir" in _one_json(stdout)["message"]
 
 
 # ---------------------------------------------------------------------------------------

@@ -155,3 +155,37 @@ def test_bad_toml_syntax_and_missing_tables(tmp_path):
          '[motion]\nactive = ["hip"]\nt_final = 1.0\ndt = 0.1\nn_ctrl = 6\n', "[environment] needs a [contact] table")
     with pytest.raises(ProblemFileError, match="cannot read the problem file"):
         load_problem(tmp_path / "absent.toml")
+
+
+def test_robot_package_dirs_and_strict(tmp_path):
+    """[robot] package_dirs (relative to the file) resolves package:// meshes; strict = true
+    (or the command line's strict) refuses an implausible inertia the default loads with
+    a warning."""
+    trimesh = pytest.importorskip("trimesh")
+    mesh_dir = tmp_path / "pkgs" / "acro" / "meshes"
+    mesh_dir.mkdir(parents=True)
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(str(mesh_dir / "tip.stl"))
+    urdf = open(os.path.join(os.path.dirname(EXAMPLE), "acrobot.urdf")).read()
+    urdf = urdf.replace('<geometry><capsule radius="0.04" length="1.0"/></geometry>\n    </collision>\n  </link>\n</robot>',
+                        '<geometry><capsule radius="0.04" length="1.0"/></geometry>\n    </collision>\n'
+                        '    <collision><geometry><mesh filename="package://acro/meshes/tip.stl"/></geometry></collision>'
+                        '\n  </link>\n</robot>')
+    assert "package://acro" in urdf
+    (tmp_path / "robot").mkdir()
+    (tmp_path / "robot" / "acrobot.urdf").write_text(urdf)
+    text = TEXT.replace('file = "acrobot.urdf"', 'file = "robot/acrobot.urdf"\npackage_dirs = ["pkgs"]')
+    (tmp_path / "p.toml").write_text(text)
+    p = load_problem(str(tmp_path / "p.toml"))
+    assert sum(isinstance(g, cs.ConvexMesh) for g in p.model.geoms) == 1
+    (tmp_path / "robot" / "acrobot.urdf").write_text(urdf.replace('izz="8.33333333333333e-8"', 'izz="0.3"', 1))
+    with pytest.warns(cs.ModelWarning, match="body 'link1': implausible inertia"):
+        load_problem(str(tmp_path / "p.toml"))
+    with pytest.raises(ProblemFileError, match=r"p\.toml: \[robot\]: .*acrobot\.urdf: body 'link1': implausible "
+                                               r"inertia"):
+        load_problem(str(tmp_path / "p.toml"), strict=True)
+    (tmp_path / "s.toml").write_text(text.replace('package_dirs = ["pkgs"]', 'package_dirs = "pkgs"\nstrict = true'))
+    with pytest.raises(ProblemFileError, match="implausible inertia"):
+        load_problem(str(tmp_path / "s.toml"))
+    (tmp_path / "b.toml").write_text(text.replace('["pkgs"]', '["nowhere"]'))
+    with pytest.raises(ProblemFileError, match=r"\[robot\] package_dirs: .*nowhere' is not a directory"):
+        load_problem(str(tmp_path / "b.toml"))

@@ -35,30 +35,67 @@ def _setup_jax():
         pass
 
 
-def load_model(spec: str, floating_base=None):
-    """A model from a shipped robot name, a URDF path or an MJCF path."""
+def load_model(spec: str, floating_base=None, package_dirs=(), strict=False):
+    """A model from a shipped robot name, a shipped problem's name (its robot), a URDF,
+    MJCF or TOML problem file path. ``package_dirs`` and ``strict`` go to the loaders
+    (``--package-dir``, ``--strict``)."""
     import cstorm as cs
+    from .report import problem_segments
 
     if spec in cs.robots.REGISTRY:
         return cs.robots.get(spec)
     if not os.path.exists(spec):
-        raise cs.ModelError(f"{spec!r} is neither a shipped robot ({', '.join(cs.robots.names())}) nor a file")
-    if spec.lower().endswith(".urdf"):
-        return cs.load_urdf(spec, floating_base=floating_base)
-    if spec.lower().endswith(".xml") or spec.lower().endswith(".mjcf"):
-        return cs.load_mjcf(spec)
-    raise cs.ModelError(f"{spec}: unknown model file type (expected .urdf or .xml)")
+        if spec in cs.examples.names():
+            problem, _ = resolve_problem(spec)
+            return problem_segments(problem)[0].model
+        raise cs.ModelError(f"{spec!r} is neither a shipped robot ({', '.join(cs.robots.names())}), nor a shipped "
+                            f"problem ({', '.join(cs.examples.names())}), nor a file")
+    check = "strict" if strict else "warn"
+    low = spec.lower()
+    if low.endswith(".urdf"):
+        return cs.load_urdf(spec, floating_base=floating_base, package_dirs=list(package_dirs), inertia_check=check)
+    if low.endswith(".xml") or low.endswith(".mjcf"):
+        return cs.load_mjcf(spec, inertia_check=check, strict=strict)
+    if low.endswith(".toml"):
+        problem, _ = resolve_problem(spec, package_dirs=package_dirs, strict=strict)
+        return problem_segments(problem)[0].model
+    raise cs.ModelError(f"{spec}: unknown model file type (expected .urdf, .xml, .mjcf or a .toml problem file)")
 
 
 def cmd_info(args):
     from .model.info import describe
 
-    model = load_model(args.model, floating_base=args.floating_base)
+    model = _with_warnings_on_stderr(args, lambda: load_model(args.model, floating_base=args.floating_base,
+                                                              package_dirs=_package_dirs(args), strict=args.strict))
     if args.json:
         print(json.dumps(_model_json(model)))
     else:
         print(describe(model))
     return 0
+
+
+def _package_dirs(args):
+    """``--package-dir`` values, made absolute and checked."""
+    from .errors import InputError
+
+    out = []
+    for d in getattr(args, "package_dir", None) or []:
+        if not os.path.isdir(d):
+            raise InputError(f"--package-dir {d!r}: not a directory")
+        out.append(os.path.abspath(d))
+    return out
+
+
+def _with_warnings_on_stderr(args, fn):
+    """Run ``fn`` showing each model warning as one line on stderr (also under --json)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn()
+    for w in caught:
+        print(f"cstorm {getattr(args, 'cmd', 'solve')}: warning: {w.message}", file=sys.stderr)
+    return out
 
 
 def _model_json(model):
@@ -69,7 +106,7 @@ def _model_json(model):
         bodies=[dict(name=n, parent=(model.body_names[p] if p >= 0 else None), joint=j, joint_type=jt.name,
                      mass=float(m)) for n, p, j, jt, m in zip(model.body_names, model.parents, model.joint_names,
                                                               model.joints, np.asarray(model.mass))],
-        geoms=list(model.geom_names), total_mass=float(np.sum(np.asarray(model.mass))),
+        geoms=list(model.geom_names), total_mass=float(np.sum(np.asarray(model.mass))), notes=list(model.notes),
     )
 
 
@@ -111,10 +148,11 @@ def _parse_set(items):
     return out
 
 
-def resolve_problem(spec: str, kwargs=None, segment=None):
+def resolve_problem(spec: str, kwargs=None, segment=None, package_dirs=(), strict=False):
     """``(problem, source)`` for a shipped example name or a TOML problem file path;
     ``kwargs`` go to the example's factory; ``segment`` selects one segment of a
-    sequence (see `cstorm.report.select_segment`)."""
+    sequence (see `cstorm.report.select_segment`); ``package_dirs`` and ``strict`` go to
+    a problem file's robot loader (shipped examples build their robots themselves)."""
     import cstorm as cs
     from .errors import InputError
     from .report import problem_from_source
@@ -131,6 +169,8 @@ def resolve_problem(spec: str, kwargs=None, segment=None):
         source = dict(kind="toml", path=os.path.abspath(spec), text=text)
         if kwargs:
             source["overrides"] = dict(kwargs)
+        if package_dirs or strict:
+            source["robot"] = dict(package_dirs=list(package_dirs), strict=bool(strict))
     else:
         if spec not in cs.examples.names():
             raise InputError(f"unknown problem {spec!r}: not a shipped example ({', '.join(cs.examples.names())}) "
@@ -210,7 +250,9 @@ def cmd_solve(args):
     from .optimize.sequence import MotionSequence
     from .report import write_outputs
 
-    problem, source = resolve_problem(args.problem, _parse_set(args.set), args.segment)
+    problem, source = _with_warnings_on_stderr(args, lambda: resolve_problem(
+        args.problem, _parse_set(args.set), args.segment, package_dirs=_package_dirs(args),
+        strict=getattr(args, "strict", False)))
     label = problem.name if args.segment is None else f"{source.get('name', problem.name)}-{problem.name}"
     out = args.out or os.path.join("cstorm-out", label)
     os.makedirs(out, exist_ok=True)
@@ -337,9 +379,12 @@ def _write_json(path, obj):
 def build_parser():
     p = _Parser(prog="cstorm", description="Optimal motions for robots that make and break contact.")
     sub = p.add_subparsers(dest="cmd", required=True)
-    pi = sub.add_parser("info", help="describe a robot model (shipped name, URDF or MJCF path)")
-    pi.add_argument("model")
+    pi = sub.add_parser("info", help="describe a robot model (shipped robot or problem name, URDF, MJCF or TOML "
+                                     "problem file)")
+    pi.add_argument("model", help="a shipped robot (tumbler, double_pendulum), a shipped problem's name (its "
+                                  "robot), or a .urdf / .xml / .toml path")
     pi.add_argument("--floating-base", choices=["free", "planar"], default=None)
+    _robot_options(pi)
     pi.add_argument("--json", action="store_true")
     pi.set_defaults(fn=cmd_info)
     pd = sub.add_parser("demo", help="solve the demo motion (the tumbling robot's four segments) and write its "
@@ -386,6 +431,7 @@ def build_parser():
                     help="skip the check of dt against the integrator's stability limit (cstorm.check_time_step), "
                          "run along the initial guess before solving and along the solution after")
     ps.add_argument("--json", action="store_true", help="print exactly one JSON object (the summary) on stdout")
+    _robot_options(ps)
     ps.set_defaults(fn=cmd_solve)
     pa = sub.add_parser("animate", help="re-render plots and the animation of a saved solution")
     pa.add_argument("solution", help="a directory written by `cstorm solve`, or its solution.npz")
@@ -399,6 +445,15 @@ def build_parser():
     pg.add_argument("--json", action="store_true")
     pg.set_defaults(fn=cmd_check_gradients)
     return p
+
+
+def _robot_options(p):
+    p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
+                   help="a directory holding ROS packages (or one package), for URDF package:// mesh URIs; "
+                        "repeatable; searched before ROS_PACKAGE_PATH and the directories around the file")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse implausible inertias (triangle inequality violated) and MJCF elements cstorm "
+                        "does not model, instead of loading with a warning")
 
 
 class _UsageError(Exception):

@@ -5,6 +5,7 @@ The schema is documented in docs/problem-files.md; in short::
     name = "acrobot_swing_up"
     [robot]        file = "acrobot.urdf" (URDF/MJCF, relative to this file) | name = "tumbler"
                    floating_base = "planar" | "free"      (URDF only)
+                   package_dirs = ["dir", ...]  (URDF package:// roots), strict = true
     [environment]  [[environment.obstacle]] type = "ground" | "incline" | "box" | "platform"
                    | "step" | "sphere" (+ their arguments); pairs; self_collision
     [contact]      stiffness, damping, d_on, d_off, friction, v_max, eps;
@@ -141,9 +142,10 @@ def _tname(v):
             float: "a float"}.get(type(v), type(v).__name__)
 
 
-def load_problem(path, overrides=None):
+def load_problem(path, overrides=None, package_dirs=(), strict=False):
     """Read a TOML problem file; returns a `MotionProblem` (with ``solve_options`` and
-    ``success_criteria`` from the file). ``overrides``: see `apply_overrides`."""
+    ``success_criteria`` from the file). ``overrides``: see `apply_overrides`;
+    ``package_dirs``, ``strict``: see `load_problem_text`."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -154,7 +156,7 @@ def load_problem(path, overrides=None):
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         raise ProblemFileError(f"{path}: not UTF-8 text: {e}") from None
-    return load_problem_text(text, path, overrides)
+    return load_problem_text(text, path, overrides, package_dirs=package_dirs, strict=strict)
 
 
 def apply_overrides(doc: dict, overrides: dict, path: str = "<string>") -> dict:
@@ -186,10 +188,13 @@ def apply_overrides(doc: dict, overrides: dict, path: str = "<string>") -> dict:
     return doc
 
 
-def load_problem_text(text: str, path: str = "<string>", overrides=None):
+def load_problem_text(text: str, path: str = "<string>", overrides=None, package_dirs=(), strict=False):
     """Build the problem from TOML ``text``; ``path`` names it in errors and is the base
     for relative robot file paths; ``overrides`` (dotted key -> value) change the parsed
-    document first (`apply_overrides`)."""
+    document first (`apply_overrides`). ``package_dirs`` (directories holding ROS
+    packages, searched before the file's ``[robot] package_dirs``) and ``strict`` (or-ed
+    with the file's ``[robot] strict``) are the command line's ``--package-dir`` and
+    ``--strict``."""
     import cstorm as cs
     from .optimize import costs as C, constraints as K
     from .optimize.problem import MotionProblem
@@ -207,8 +212,18 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
 
     # ---- robot ---------------------------------------------------------------------------
     rob = ctx.table(doc, "robot", "top level", required=True)
-    ctx.keys(rob, {"name", "file", "floating_base"}, "[robot]")
+    ctx.keys(rob, {"name", "file", "floating_base", "package_dirs", "strict"}, "[robot]")
     fb = ctx.string(rob, "floating_base", "[robot]", choices=("free", "planar"))
+    strict = bool(strict) or ctx.boolean(rob, "strict", "[robot]")
+    pdirs = rob.get("package_dirs", [])
+    if isinstance(pdirs, str):
+        pdirs = [pdirs]
+    if not isinstance(pdirs, list) or not all(isinstance(d, str) for d in pdirs):
+        raise ctx.err("[robot] package_dirs", f"expected a directory or a list of directories, got {pdirs!r}")
+    pdirs = [os.fspath(d) for d in package_dirs] + [d if os.path.isabs(d) else os.path.join(base, d) for d in pdirs]
+    for d in pdirs:
+        if not os.path.isdir(d):
+            raise ctx.err("[robot] package_dirs", f"{d!r} is not a directory")
     if ("name" in rob) == ("file" in rob):
         raise ctx.err("[robot]", "give exactly one of 'name' (a shipped robot: "
                       f"{', '.join(cs.robots.names())}) or 'file' (a URDF or MJCF path)")
@@ -227,12 +242,13 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None):
             if not os.path.exists(full):
                 raise ctx.err("[robot] file", f"{rfile!r} not found (looked for {full})")
             low = full.lower()
+            check = "strict" if strict else "warn"
             if low.endswith(".urdf"):
-                model = cs.load_urdf(full, floating_base=fb)
+                model = cs.load_urdf(full, floating_base=fb, package_dirs=pdirs, inertia_check=check)
             elif low.endswith(".xml") or low.endswith(".mjcf"):
                 if fb is not None:
                     raise ctx.err("[robot] floating_base", "only for URDF files (MJCF files declare their joints)")
-                model = cs.load_mjcf(full)
+                model = cs.load_mjcf(full, inertia_check=check, strict=strict)
             else:
                 raise ctx.err("[robot] file", f"{rfile!r}: unknown robot file type (expected .urdf or .xml)")
     except ProblemFileError:

@@ -182,7 +182,8 @@ def problem_from_source(source: dict):
     """Rebuild a problem from a provenance ``source`` dict: ``{"kind": "example", "name":
     ..., "kwargs": {...}}`` (a shipped example) or ``{"kind": "toml", "path": ...,
     "text": ...}`` (a TOML problem file; its stored text is used, the path resolves
-    relative robot files), each with an optional ``"segment"`` (name) selecting one
+    relative robot files; an optional ``"robot": {"package_dirs": [...], "strict": bool}``
+    holds the command line's ``--package-dir`` and ``--strict``), each with an optional ``"segment"`` (name) selecting one
     segment of a sequence. Raises `InputError` saying why when it can't."""
     from . import examples
 
@@ -204,7 +205,9 @@ def problem_from_source(source: dict):
     elif kind == "toml":
         from .problemfile import load_problem_text
 
-        problem = load_problem_text(source["text"], source.get("path", "<stored TOML>"), source.get("overrides"))
+        robot = source.get("robot") or {}
+        problem = load_problem_text(source["text"], source.get("path", "<stored TOML>"), source.get("overrides"),
+                                    package_dirs=robot.get("package_dirs", ()), strict=robot.get("strict", False))
     else:
         raise InputError(f"cannot rebuild the problem: unknown source kind {kind!r} (expected 'example' or 'toml')")
     seg = source.get("segment")

@@ -106,10 +106,16 @@ def test_malformed_xml_names_line(write):
               joint("j1", "base", "l1")), r"<box> \(collision 'l1_collision0' of link 'l1'\): attribute size='1 1'"),
         (urdf(link("base"), link("base")), r"link 'base' is defined twice"),
         ('<?xml version="1.0"?><robt name="x"/>', r"the root element of a URDF must be <robot>"),
+        (urdf(link("base"), link("l1"), joint("j1", "base", "l1", extra='<axis xyz="0 0 0"/>')),
+         r"<axis> of joint 'j1': axis must be non-zero"),
+        (urdf(link("base"), link("l1", i="nan"), joint("j1", "base", "l1")),
+         r"<inertia> of link 'l1': attribute ixx='nan' must be finite"),
+        (urdf(link("base"), link("l1", m=0.0, i=0.0), joint("j1", "base", "l1")),
+         r"joint 'j1' moves a subtree with no mass or no inertia about its axis"),
     ],
     ids=["negative_mass", "indefinite", "unknown_type", "planar", "dangling_parent", "dangling_child",
          "cycle", "two_roots", "two_parents", "massless_subtree", "missing_type", "bad_axis", "bad_limits",
-         "no_inertia", "bad_box", "duplicate_link", "not_robot"],
+         "no_inertia", "bad_box", "duplicate_link", "not_robot", "zero_axis", "nan_inertia", "zero_mass"],
 )
 def test_urdf_errors_name_file_and_element(write, text, pattern):
     p = write(text)

@@ -95,8 +95,7 @@ def judge_bodies(source: str, body_names, body_links, mass, inertia, links, chec
     strict = check == "strict"
     notes: list[str] = []
     inertia = np.array(inertia, dtype=float)
-    all_links = [L for L in links.values()]
-    model_scale = max([np.abs(_moments(I)).max() for _, I in all_links] + [0.0])
+    model_scale = max((np.abs(_moments(I)).max() for _, I in links.values()), default=0.0)
     floor = FLOOR * model_scale
 
     # links welded to the world: not part of the dynamics

@@ -22,13 +22,20 @@ What is read (URDF spec, http://wiki.ros.org/urdf/XML):
   is ignored). ``<mimic>`` is not modelled: a mimic joint becomes an
   independent DoF (one warning lists them), as in Pinocchio's default.
 
-Mesh paths: ``package://pkg/rest`` is looked up in ``package_dirs`` (a dict
-``{"pkg": dir}``, or a list of directories that contain package folders), then in the
-ancestors of the URDF's directory (a folder named ``pkg``); ``file://`` and absolute
-paths must lie below the URDF's directory or one of ``mesh_dirs``; relative paths are
-taken below the URDF's directory (then ``mesh_dirs``). A path that resolves (symlinks
-followed) outside the directory it was looked up in is an error; a mesh that cannot be
-found or read is skipped with a warning.
+Mesh paths (see `_resolve_mesh`): ``package://pkg/rest`` is looked up in ``package_dirs``
+(a dict ``{"pkg": dir}``, or a list of directories that hold package folders or are
+one), then in ``ROS_PACKAGE_PATH``, then around the file (an ancestor of the URDF's
+directory named ``pkg``, or holding a folder ``pkg``); ``package:///rest`` is ``rest``
+below any of those roots. ``file://`` and absolute paths must lie below the URDF's
+directory or one of ``mesh_dirs``; relative paths are taken below the URDF's directory
+(then ``mesh_dirs``). A path that resolves (symlinks followed) outside the directory it
+was looked up in is an error; a mesh that cannot be found or read (or a malformed URI)
+is skipped with one `cstorm.ModelWarning` naming it, and the link keeps its other shapes.
+
+Inertias are judged on the merged bodies (`cstorm.model.inertia`): rounding noise is
+repaired with a note (``model.notes``), implausible but computable inertias load with one
+warning per body (``inertia_check="strict"`` refuses them), what the dynamics cannot
+survive is an error.
 
 Every error is a `cstorm.ModelError` naming the file, and the line, element, joint or link.
 """
@@ -273,12 +280,15 @@ def load_urdf(path, floating_base: str | None = None, package_dirs=None, mesh_di
             joint named ``root``) or ``"planar"`` (``root_x``, ``root_z``, ``root_pitch``);
             see `ModelBuilder.build`.
         package_dirs: where ``package://`` mesh URIs point: ``{"pkg": "/dir/of/pkg"}`` or a
-            list of directories holding package folders.
+            list of directories holding package folders (searched before
+            ``ROS_PACKAGE_PATH`` and the directories around the file).
         mesh_dirs: further directories that mesh files may lie in (besides the URDF's).
         load_meshes: False skips ``<mesh>`` collision geometry silently.
-        inertia_check: ``"strict"`` (default: an inertia that violates the triangle
-            inequality is an error) or ``"lenient"`` (a warning; many published URDFs
-            need this). Indefinite inertias are errors either way.
+        inertia_check: ``"warn"`` (default; ``"lenient"`` is a synonym): a body whose
+            inertia violates the triangle inequality, or holds an implausible link, loads
+            with one `cstorm.ModelWarning` per body; ``"strict"``: a `ModelError`. What
+            the dynamics cannot survive (indefinite bodies, negative mass, NaN) is an
+            error either way; rounding noise is repaired with a note in ``model.notes``.
     Returns: the `Model`; collision shapes in ``model.geoms``.
     Raises: `cstorm.ModelError` naming the file and the element, joint or link at fault.
     """

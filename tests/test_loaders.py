@@ -229,7 +229,7 @@ def test_rounding_noise_is_clipped_with_a_note(write):
     p = write(urdf(link("base"), _inertial_link("l1", 1.0, 0.1, 0.2, 0.25), joint("j1", "base", "l1"),
                    _inertial_link("l2", 1.26, -6e-21, 8e-22, 1.1e-18), joint("j2", "l1", "l2", extra=
                    '<origin xyz="0.3 0 0"/><axis xyz="0 1 0"/>'),
-                   _inertial_link("l3", 1.0, 0.1, 0.1, -1e-13), joint("j3", "l2", "l3", extra='<axis xyz="0 1 0"/>')))
+                   _inertial_link("l3", 1.0, 0.1, 0.1, -1e-13), joint("j3", "l2", "l3", extra='<origin xyz="0 0 -0.2"/><axis xyz="0 1 0"/>')))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model = load_urdf(p)

@@ -1,4 +1,4 @@
-"""Run every benchmark and write the results table into benchmarks/README.md.
+"""Run every benchmark and write each one's results to benchmarks/results/NAME.json.
 
     python -m benchmarks [--quick] [--only NAME[,NAME...]] [--write | --no-write] [--json PATH]
 
@@ -15,12 +15,11 @@ Each benchmark module in this package (every ``benchmarks/<name>.py`` not starti
     notes      free text
 
 A module without ``run``, or whose import or ``run`` fails, is skipped with a printed
-note (its section in the README then says so), so the runner works while modules are
+note (its results file then records the reason), so the runner works while modules are
 being changed. ``--quick`` asks each module for a short smoke run (small batches, few
-repeats): its numbers are noisy and it does not rewrite the README unless ``--write``.
-Each module's section of the README, between the markers ``<!-- results:NAME:begin -->``
-and ``<!-- results:NAME:end -->``, is replaced (appended when absent); the rest of the
-file is kept, so ``--only NAME --write`` refreshes one section.
+repeats): its numbers are noisy and it writes no results file unless ``--write``.
+A results file holds ``benchmark, date, commit, machine, versions, load_average, quick``
+and ``rows`` (or ``error``); the markdown table of the run is printed.
 """
 
 from __future__ import annotations
@@ -32,6 +31,8 @@ import json
 import math
 import os
 import pkgutil
+import platform
+import subprocess
 import sys
 import time
 import traceback
@@ -40,8 +41,7 @@ from benchmarks._common import machine
 
 KEYS = ("benchmark", "case", "cstorm_us", "peer", "peer_us", "ratio", "compile_s", "notes")
 HERE = os.path.dirname(os.path.abspath(__file__))
-README = os.path.join(HERE, "README.md")
-BEGIN, END = "<!-- results:{}:begin -->", "<!-- results:{}:end -->"
+RESULTS = os.path.join(HERE, "results")
 ORDER = ("dynamics", "derivatives", "contact", "trajectory")
 # Run by hand on a machine with an accelerator (no peer of ours runs there): see gpu.py.
 EXCLUDE = ("gpu",)
@@ -126,40 +126,60 @@ def run_all(names, quick):
     return results
 
 
-def section(name, rows, quick) -> str:
-    """One module's README section, between its own markers (so `--only` updates just it)."""
-    date = datetime.date.today().isoformat()
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    body = rows if isinstance(rows, str) else markdown(rows)
-    return "\n".join([BEGIN.format(name), f"### {name} ({date}{', quick smoke run' if quick else ''})", "",
-                      f"Machine: {machine()}; load average after the run: {load}.", "", body, END.format(name)])
+def commit() -> str:
+    """The checked-out commit (with ``+dirty`` when the tree has changes), or "unknown"."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=HERE, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
 
 
-def report(results, quick) -> str:
-    return "\n\n".join(section(n, r, quick) for n, r in results.items())
+def versions() -> dict:
+    """Versions of Python and of the libraries the benchmarks time or compare with."""
+    out = {"python": platform.python_version()}
+    for name in ("cstorm", "jax", "jaxlib", "numpy", "pinocchio", "mujoco", "coal"):
+        try:
+            out[name] = str(importlib.import_module(name).__version__)
+        except Exception:  # noqa: BLE001 - a peer that is not installed is recorded as absent
+            out[name] = None
+    return out
 
 
-def write_readme(results, quick, path=README):
-    """Replace each module's section in the README (appended when new)."""
-    text = open(path).read() if os.path.exists(path) else "# Benchmarks\n"
+def record(name, rows, quick) -> dict:
+    """One module's results file: the run's provenance and its rows (or the reason it was skipped)."""
+    out = dict(benchmark=name, date=datetime.date.today().isoformat(), commit=commit(), machine=machine(),
+               versions=versions(), load_average=[round(x, 2) for x in os.getloadavg()], quick=quick)
+    out.update(error=rows) if isinstance(rows, str) else out.update(rows=rows)
+    return out
+
+
+def write_results(results, quick, directory=RESULTS):
+    """Write ``directory/NAME.json`` for each module run (atomically)."""
+    os.makedirs(directory, exist_ok=True)
     for name, rows in results.items():
-        new = section(name, rows, quick)
-        b, e = BEGIN.format(name), END.format(name)
-        if b in text and e in text:
-            head, rest = text.split(b, 1)
-            text = head + new + rest.split(e, 1)[1]
-        else:
-            text = text.rstrip("\n") + "\n\n" + new + "\n"
-    with open(path, "w") as f:
-        f.write(text)
+        path = os.path.join(directory, f"{name}.json")
+        with open(path + ".tmp", "w") as f:
+            json.dump(record(name, rows, quick), f, indent=1, default=str)
+            f.write("\n")
+        os.replace(path + ".tmp", path)
+        print(f"wrote {path}")
+
+
+def report(results) -> str:
+    """The run's tables, one markdown section per module."""
+    return "\n\n".join(f"### {n}\n\n" + (r if isinstance(r, str) else markdown(r)) for n, r in results.items())
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short smoke run (noisy numbers; README untouched)")
+    ap.add_argument("--quick", action="store_true", help="short smoke run (noisy numbers; no results file)")
     ap.add_argument("--only", default=None, help="comma-separated module names, e.g. derivatives,dynamics")
-    ap.add_argument("--write", action="store_true", help="write the README even with --quick")
-    ap.add_argument("--no-write", action="store_true", help="print the table only")
+    ap.add_argument("--write", action="store_true", help="write the results files even with --quick")
+    ap.add_argument("--no-write", action="store_true", help="print the tables only")
     ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
     args = ap.parse_args(argv)
     names = modules()
@@ -170,14 +190,12 @@ def main(argv=None):
             ap.error(f"unknown benchmark(s) {unknown}; available: {names}")
         names = want
     results = run_all(names, args.quick)
-    text = report(results, args.quick)
-    print(text)
+    print(report(results))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"machine": machine(), "quick": args.quick, "results": results}, f, indent=1, default=str)
+            json.dump({n: record(n, r, args.quick) for n, r in results.items()}, f, indent=1, default=str)
     if not args.no_write and (args.write or not args.quick):
-        write_readme(results, args.quick)
-        print(f"wrote {README}")
+        write_results(results, args.quick)
     return 0 if all(not isinstance(r, str) for r in results.values()) else 1
 
 

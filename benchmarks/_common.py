@@ -41,7 +41,7 @@ def best_of(fn, repeat=5, number=1, warmup=0):
     first calls of a compiled function fault their buffers in page by page until the heap
     holds enough freed blocks to reuse (TALOS hybrid derivatives, batch 4096, 370 MB of
     outputs and temporaries: 458, 246, then 92 us per configuration, 163k, 95k, then 0
-    minor page faults per call; session 24)."""
+    minor page faults per call)."""
     for _ in range(warmup):
         jax.block_until_ready(fn())
     best = float("inf")

@@ -52,45 +52,7 @@ Break-even parameter count: MuJoCo's finite-difference time grows linearly with 
 ``P*`` is where the fitted line ``t_fd(P) = a + b (P + 1)`` (measured at several ``P``)
 meets cstorm's gradient time at 30 parameters.
 
-The latest results are in benchmarks/README.md (2026-12-03, session 16: with the
-time-parallel rule and the analytic ground-contact derivatives, 2.5x faster than MuJoCo
-FD at 30 parameters with and without contact, 23-26x at 300; the notes there list every
-run). Earlier results, with the rule of that time
-(2026-11-23, full run: 500 steps; x86_64, 2 cores, jax 0.10.2 cpu, the machine
-**shared with three other engineers' jobs, load average 3.5-5**, so both sides ran
-slower than on an idle machine and ratios carry perhaps +-30% noise; MuJoCo FD used both
-threads):
-
-| case | cstorm (ms) | peer (ms) | cstorm / peer | target |
-|---|---|---|---|---|
-| forward, no contact | 22.8 | MuJoCo 1 rollout 9.3 | 2.46 | |
-| cost+gradient, 30 params, no contact | 176 | FD 31 rollouts 264 | 0.67 (1.5x faster) | >= 2x: **missed** |
-| cost+gradient, 300 params, no contact | 220 | FD 301 rollouts 2794 | 0.079 (12.7x) | >= 10x: met |
-| gradient / forward, no contact | 176 | forward 22.8 | 7.7 | <= 4: **missed** |
-| forward, contact | 105 | MuJoCo 1 rollout 24.4 | 4.3 | |
-| cost+gradient, 30 params, contact | 449 | FD 31 rollouts 608 | 0.74 (1.4x faster) | >= 2x: **missed** |
-| cost+gradient, 300 params, contact | 430 | FD 301 rollouts 6187 | 0.070 (14.4x) | >= 10x: met |
-| gradient / forward, contact | 449 | forward 105 | 4.3 | <= 4: **missed** (just) |
-
-Compile: forward 14 s, gradient 86 s (no contact) / 108 s (contact). Break-even
-(MuJoCo FD line ``t = a + b (P + 1)``, b = 9.3 ms per rollout over 2 threads without
-contact, 20 ms with): ~15 parameters without contact, ~11 with contact. The quick run
-(200 steps) gave the same picture (1.5x / 1.4x at 30, 10.6x / 11.5x at 300, gradient /
-forward 6.0 / 2.2).
-
-Where the time goes (profiled on the same model, per evaluation inside a 800-step scan,
-noisy): hybrid dynamics 6.4 us (7.8 us with ``f_ext``), contact forces alone 4.1 us,
-passive forces 0.1 us, an empty scan iteration 0.03 us, but contact forces feeding the
-hybrid algorithm in one program 31-61 us: 2.5-4x the sum of its parts, i.e. XLA-CPU's
-fusion across the contact -> dynamics boundary (producers duplicated into consumers),
-not loop overhead; an ``optimization_barrier`` on ``f_ext`` cut it by ~30% in one
-measurement (not adopted: unverified under this load). Without contact cstorm's RK4 step
-(4 hybrid-dynamics stages) is ~46 us against MuJoCo's ~19 us. The gradient / forward
-ratio (4.3-7.7) is reverse mode through the checkpointed scan: one forward, a recomputed
-forward per segment, and a backward pass ~2-3x a forward, with XLA-CPU's per-op cost on
-these small (nv = 6) arrays; forward mode is not an alternative at 30+ parameters. The
-30-parameter target thus needs a cheaper step (fewer, larger fusions; the analytic
-`hybrid_dynamics_derivatives` in a custom VJP of the step), not fewer parameters.
+Results: ``benchmarks/results/trajectory.json`` (written by ``python -m benchmarks``).
 """
 
 from __future__ import annotations

@@ -6,42 +6,24 @@ handstand problem evaluates at every SLSQP iteration (compile and run timed sepa
 
 The problem: ``cstorm.examples.tumbler.tumbler_segment("handstand")``: the planar
 three-capsule tumbler (planar passive base ``root_x, root_z, root_pitch`` on the torso,
-active hip and shoulder), 10 contact points against the ground, RK4 at dt = 4 ms over
-2 s (500 steps), 14 decision variables. Timed: ``problem.compiled("fun")`` (objective
-and constraints: one recorded rollout) and, unless ``--quick``, ``problem.compiled(
-"fun_jac")`` (values and the forward-mode Jacobian, 14 tangents), each at the initial
+active hip and shoulder), 10 contact points against the ground, RK4 at `HANDSTAND_DT`
+over `HANDSTAND_T`. Timed: ``problem.compiled("fun")`` (objective and constraints: one
+recorded rollout) and, unless ``--quick``, ``problem.compiled("fun_jac")`` (values and
+the forward-mode Jacobian, one tangent per decision variable), each at the initial
 guess, best of several calls, reported per RK4 step; compile time separately.
 
 Peer (same run, same process): one dynamics *stage* (contact forces, passive forces and
 the hybrid dynamics at one instant, the work an RK4 step does four times) in a plain
-``lax.scan`` of 500 evaluations. ``ratio`` = rollout step / (4 x stage): how much the
+``lax.scan`` of as many evaluations as the rollout has steps. ``ratio`` = rollout step / (4 x stage): how much the
 rollout (state updates, the stage loop, divergence checks, recording, the running cost)
 adds on top of the dynamics itself; 1 would be no overhead (for ``fun_jac`` the ratio
-includes the derivatives, 14 tangents).
+includes the derivatives).
 
-Reference points (DESIGN.md): the throwaway feasibility study's hand-written rollout of
-the same robot took 12 us per RK4 step. Results on this shared 2-core machine carry
-+-30% noise or more; the load average is printed with each run.
+Reference point (DESIGN.md): the feasibility study's hand-written rollout of the same
+robot took 12 us per RK4 step. On a shared machine the ratios carry noise; the load
+average is recorded with each run.
 
-Latest (2026-11-23; the code before -> after the commits that keep the RK4 stage loop's
-buffers small (ded9ae7, fcb3833), measured in one process against a copy of the previous
-code, best of 5, identical values): ``fun`` 79.4 -> 43.7 ms per evaluation (159 -> 87 us
-per step) at load 4-5, 108.7 -> 56.7 ms at load 5, 84.5 -> 36.5 ms (169 -> 73 us per
-step) at load 5-6 (ded9ae7 alone); ``fun_jac`` 381 -> 356 ms (763 -> 712 us per step, load 4-5).
-Compile: ``fun`` 12-14 s, ``fun_jac`` 46-56 s on both. The stage peer: ~16 us per stage
-(load 2), so a step costs ~1.5-1.8x its four stages: the rest is the rollout's own
-bookkeeping (the step loop records the trajectory into buffers over 512 bytes, so its
-~40 kernels run through XLA's dataflow executor).
-
-Tried without success (2026-11-23): re-evaluating the contact forces or the hybrid
-dynamics as a graph of scalar operations (every array entry its own value, so XLA fuses
-across what are now separate kernels). Contact alone in a scan dropped from 43 kernels /
-8-16 us to 3 kernels / 2.2 us per evaluation, but the hybrid dynamics stayed at ~116
-kernels (XLA stops fusing scalar values with 30+ users) and, inside the rollout, XLA
-duplicated the scalar contact graph into the dynamics' kernels: 5-100x slower overall.
-An ``optimization_barrier`` on ``f_ext`` between contact and dynamics: 15-20% faster for
-contact + dynamics alone under the dataflow executor, slower for the whole stage (55 vs
-46 us); not re-measured with the sequential stage loop.
+Results: ``benchmarks/results/tumbler.json`` (written by ``python -m benchmarks``).
 """
 
 from __future__ import annotations

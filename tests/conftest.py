@@ -24,22 +24,19 @@ def _free_compiled_code():
     its memory-map limit. On CPU each executable holds memory mappings (~5,000 for one
     tumbler problem; the largest module, test_derivatives, adds ~31,000); a worker that
     kept every module's code passed Linux's vm.max_map_count (65,530) late in the suite,
-    and XLA's compiler segfaulted (CI, stop 12; see cstorm.mapguard). Measured on a
-    fresh clone: the largest worker peaks at ~35,000 mappings; the suite takes 15m42s,
-    against 17m00s when the caches were cleared after every module (recompiles)."""
+    and XLA's compiler segfaults (see cstorm.mapguard). Clearing only above 30 % keeps
+    the recompiles that clearing after every module would cost."""
     yield
     from cstorm.mapguard import relieve_map_pressure
 
     relieve_map_pressure(fraction=0.3, where="test-suite", warn=False)
 
 
-#: seconds per test module on 2 workers (`pytest -n 2 --dist loadfile --durations=0`,
-#: session 21; setup + call + teardown, compile included). Only the order matters: the
-#: modules are handed to the workers longest first (scripts/test.sh passes
-#: ``--no-loadscope-reorder``, so xdist keeps this order instead of sorting by test
-#: count), which balanced the two workers to within seconds in a simulation of the
-#: measured times (the test-count order left one worker ~160 s behind, running the
-#: parallel-tangent module alone at the end). A module missing here counts as 30 s.
+#: seconds per test module on 2 workers (`pytest -n 2 --dist loadfile --durations=0`;
+#: setup + call + teardown, compile included). Only the order matters: the modules are
+#: handed to the workers longest first (scripts/test.sh passes ``--no-loadscope-reorder``,
+#: so xdist keeps this order instead of sorting by test count), which keeps the two
+#: workers finishing together. A module missing here counts as 30 s.
 MODULE_SECONDS = {
     "test_derivatives": 368, "test_hopping": 246, "test_geometry": 205, "test_tumbler": 179,
     "test_rollout_tangents": 159, "test_dynamics": 144, "test_walker": 136, "test_optimize": 135,

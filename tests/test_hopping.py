@@ -128,17 +128,15 @@ def _solve_and_check(name):
 
 
 def test_luxo_solves_lands_at_rest_and_is_resolved_by_its_step():
-    """`cstorm solve luxo` (the main demo's problem, in CI): the solve plan converges from
+    """`cstorm solve luxo` (in CI): the solve plan converges from
     the default guess, every success criterion holds (0.16 m forward, a flight, landing at
     rest: base speed <= 1e-3, acceleration <= 1e-2), and the landing's rest is the
     dynamics', not the integrator's: re-simulated at dt/4 and with DOP853 the final
-    velocities agree with the plan to < 1e-2 m/s and < 1 deg/s (measured 2.9e-4 m/s, 0.29
-    deg/s; at the old 4 ms / v_max 0.1 they were 0.024 m/s and 14 deg/s), and dt is
-    inside RK4's stability limit along the solution (limit 2.76 ms at dt = 2 ms). The
+    velocities agree with the plan to < 1e-2 m/s and < 1 deg/s (a step past RK4's
+    stability limit gives 0.024 m/s and 14 deg/s), and dt is inside RK4's stability
+    limit along the solution. The
     criteria include the motor limits on every step (``torque_limits``; the dense
-    constraint's stages), which `report.torque_check` confirms independently.
-    Measured: 96 iterations, cost 1.1467 (session 12; 108 and 0.8647 in session 8: the
-    path depends on the last bits of the derivatives, see docs/examples.md)."""
+    constraint's stages), which `report.torque_check` confirms independently."""
     from cstorm import report
 
     p, sol, fid = _solve_and_check("luxo")
@@ -155,9 +153,8 @@ def test_hopper_fast_variant_hops_and_lands():
     stages, a short hop, then a polish at tolerance 1e-6), on the module's hopper problem
     (its compiled functions are shared): from the default posture guess the hopper leaves
     the ground (a flight of >= 0.05 s), lands at least 0.05 m ahead and ends nearly at
-    rest, no foot through the floor, every constraint of the stage met to 1e-6. Measured:
-    106 iterations, ~100 s with a warm compile; 0.060 m, a 0.13 s flight, final base speed
-    8e-5 m/s. The full plan is the slow test below."""
+    rest, no foot through the floor, every constraint of the stage met to 1e-6. The full
+    plan is the slow test below."""
     base = _problem("hopper")
     p = _module("hopper").fast_variant(base)
     assert p._compiled is base._compiled and base.solve_options["schedule"] != p.solve_options["schedule"]
@@ -172,8 +169,7 @@ def test_hopper_fast_variant_hops_and_lands():
 def test_hopper_full_solve_meets_criteria():
     """`cstorm solve hopper`: the solve plan converges from the default guess and every
     success criterion (the hold test and the motor limits on every step included) and
-    the fidelity check hold. Measured: 247 SLSQP iterations, ~290 s with compile on a
-    loaded 2-core machine."""
+    the fidelity check hold."""
     p, sol, fid = _solve_and_check("hopper")
     crit = p.success_criteria(sol)
     assert {"holds_still_pitch", "holds_still_position", "still_after_hold", "torque_limits"} <= set(crit)

@@ -145,9 +145,7 @@ def test_standing_guess_comes_up_from_nearby_starts(model):
     it from `ROLL_END` and from starts a chained roll may leave it (pitch rate x0.8 and
     x1.3, base 0.28 m further along x): every rollout ends on its feet within 0.1 rad of
     upright and pitching slower than 0.2 rad/s. This is what makes standing's solve
-    independent of the last bits of the roll's end (the session-8 guess ended on the face
-    once its control points were clipped to the joint limits, and standing from the
-    chained roll stalled)."""
+    independent of the last bits of the roll's end."""
     p = T.tumbler_segment("standing", model=model)
     qe, ve = T.ROLL_END
     for q0, v0 in ((qe, ve), (qe, ve * [1, 1, 0.8, 1, 1]), (qe, ve * [1, 1, 1.3, 1, 1]), (qe + [0.28, 0, 0, 0, 0], ve)):
@@ -189,8 +187,7 @@ def test_start_segment_solves_and_holds_still():
     rest) from the default guess: the solve plan converges, every success criterion holds
     (pitch within 0.05 rad of upright, base velocities and accelerations at rest, and the
     `HOLD` test: 1 s with the joints locked, the pitch moves < 0.01 rad), and the motion
-    re-simulated at dt/4 and with DOP853 ends where the plan does. Measured: 78 SLSQP
-    iterations, ~45-55 s with compile on 2 cores; hold deviation 3.9 mrad."""
+    re-simulated at dt/4 and with DOP853 ends where the plan does."""
     p, sol, crit, fid = _check_segment_solve("start")
     assert crit["holds still"]["value"] < T.HOLD["pitch_tol"]
     # the velocities of the plan are the dynamics' (not an artefact of the step; DESIGN:
@@ -204,8 +201,7 @@ def test_standing_segment_gets_up_from_the_roll():
     is the start segment above, and the slow demo test solves the whole chained
     sequence): from the roll's measured end (`ROLL_END`: lying on the back, rolling at 1
     rad/s) up onto the feet at rest (pitch 2 pi within 1e-3, the hold test), from the
-    `STANDING_KEYFRAMES` guess. Measured (session 13): 82 SLSQP iterations, 68 s with a
-    15 s compile, cost 16.80, fidelity 6 um / 9e-4 deg."""
+    `STANDING_KEYFRAMES` guess."""
     p, sol, crit, fid = _check_segment_solve("standing")
     assert abs(sol.trajectory["q"][-1][1] - T.standing_q(p.model)[1]) < 2e-3  # on its feet, not lying
     assert crit["holds still"]["value"] < T.HOLD["pitch_tol"]

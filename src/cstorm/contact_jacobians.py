@@ -30,9 +30,9 @@ ancestors. Then, per DoF ``k``,
 and the force law's partials w.r.t. ``(d, u)`` (4 directions of forward mode through the
 same elementwise code that computes the value) complete the chain:
 ``dW = [dp x f + p x df; df]``. The cost is O(k nv) elementwise work, against forward
-mode through the kinematics and the point code along ``nq + nv`` directions (measured on
-Gymnasium's hopper, 8 points, vmap 2500: 17 us per evaluation for ``jacfwd`` of the
-whole contact model, against 1 us for its value; see benchmarks/README.md).
+mode through the kinematics and the point code along ``nq + nv`` directions (on
+Gymnasium's hopper ``jacfwd`` of the whole contact model costs ~17 evaluations of its
+value).
 
 Tangents of anything else (model parameters, feature geometry, plane pose, contact
 parameters) are pushed through the plain code by a JVP, and only when they are nonzero.

@@ -1,7 +1,7 @@
 """Compiled code against the process's memory-map limit (Linux).
 
 XLA's CPU backend maps each compiled executable into the process as many small
-memory regions. Measured with JAX 0.10.2: about 5,000 mappings for the compiled
+memory regions: about 5,000 mappings for the compiled
 functions of one tumbler segment (rollout with gradients, step check, solve). Linux
 caps a process at ``vm.max_map_count`` mappings (default 65,530). Past that cap, ``mmap``
 fails inside the compiler and the process dies with a segmentation fault, not a Python
@@ -11,8 +11,7 @@ over robots, a notebook, a test-suite worker) gets there after a dozen problems.
 `relieve_map_pressure` is called where cstorm is about to compile (`cstorm.solve`,
 `cstorm.simulate.simulate`, `cstorm.check_time_step`). Above ``fraction`` of the cap it
 drops JAX's compilation caches (``jax.clear_caches()``: compiled functions still in use
-are rebuilt on their next call), which returns the mappings (measured: 5,820 -> 915),
-and it warns. Elsewhere than Linux it does nothing.
+are rebuilt on their next call), which returns most of the mappings, and it warns. Elsewhere than Linux it does nothing.
 """
 
 from __future__ import annotations

@@ -59,8 +59,8 @@ a final position deviates by more than 1 cm or an angle by more than 2 deg
 (``tol_position_m``, ``tol_angle_deg``), or a final velocity by more than 1 cm/s or 1
 deg/s (``tol_velocity_m_s``, ``tol_angular_velocity_deg_s``): a plan whose landing "at
 rest" is an artefact of a step past the integrator's stability limit (see
-`cstorm.check_time_step`) can agree in positions and not in velocities (measured on the
-Luxo hop at 4 ms: 2.7 mm but 0.024 m/s and 14 deg/s). Segments
+`cstorm.check_time_step`) can agree in positions and not in velocities (the Luxo hop
+planned at 4 ms: 2.7 mm but 0.024 m/s and 14 deg/s). Segments
 of a sequence are checked separately, each from its own planned start (chaining
 open-loop re-simulations would measure the instability of, e.g., a handstand, not the
 integration). Cost: the fixed-step check reuses `cstorm.simulate.simulate`'s compiled

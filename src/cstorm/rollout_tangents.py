@@ -45,13 +45,12 @@ Under ``jax.jvp(..., has_aux=True)`` vmapped over tangents, the primal outputs a
 scan's own (unbatched), so a caller needing values and a forward Jacobian gets both from
 one pass (`cstorm.MotionProblem`'s ``derivatives="parallel"`` does).
 
-Cost (measured, 2 cores): a gradient is 2-3 forward rollouts; the tumbler handstand's
-values+Jacobian (1000 steps, 40 grid points, 26 parameters) ~70 ms primal, ~100 ms step
-Jacobians, ~2 ms recurrence. Compiling it can take longer than compiling the plain
-scan's derivative (three traced copies of the step: the primal scan, the step Jacobian,
-the grid-point Jacobian): the hopper benchmark's gradient with contact 48 s against
-56-61 s, but the tumbler's segment problems ~33 s against ~18 s, which is why it is
-opt-in.
+Cost: a gradient is 2-3 forward rollouts (for the tumbler handstand's values+Jacobian,
+1000 steps and 26 parameters, the step Jacobians take a little more than the primal
+rollout and the recurrence almost nothing). Compiling it can take longer than compiling
+the plain scan's derivative (three traced copies of the step: the primal scan, the step
+Jacobian, the grid-point Jacobian; about 2x for the tumbler's segments), which is why it
+is opt-in.
 """
 
 from __future__ import annotations
@@ -63,9 +62,7 @@ import numpy as np
 from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero
 
 # steps per batch of step Jacobians: bounds the temporaries (BATCH x n_y x n_w each).
-# One batch is faster than several (the batches run as a loop): hopper, 500 steps,
-# 30-parameter gradient 33.8 against 40.7 ms without contact, 75.7 against 85 ms with
-# it, and it compiles in 48 instead of 59 s (batches of 512 against 256)
+# One batch is faster to run and to compile than several (the batches run as a loop).
 BATCH = 1024
 
 
@@ -297,11 +294,8 @@ def contact_hybrid(model, contact_fn, q, v, a_active, tau_passive, active):
     of the contact model, and each costs an ``nv``-row product instead of a pass through
     the contact code and the ``n_bodies x 6`` wrenches. Tangents of closed-over values
     (environment, contact parameters) and of the model are pushed through by plain JVPs,
-    and only when they are nonzero. Measured on the hopper benchmark (500 RK4 steps with
-    contact, 30 parameters, reverse mode, same process): 103 ms when the contact Jacobian
-    (by forward mode through the contact code) was applied to each tangent before the
-    dynamics' JVP, 90 ms with the analytic ground-contact rule of
-    `cstorm.contact_jacobians` instead, 84 ms with this composition as well.
+    and only when they are nonzero (on the hopper benchmark this is ~20 % faster than
+    applying the contact model's forward-mode Jacobian to each tangent).
 
     Args:
       model: `Model`. contact_fn: ``(q, v) -> (f_ext (n_bodies, 6), cdata)`` (may close

@@ -5,8 +5,8 @@ for a fast, decaying mode of the dynamics does not blow up when the dynamics is
 nonlinear enough to saturate it: it settles into a hidden oscillation of that mode, and
 the rollout's velocities are no longer the dynamics' while its positions may agree. The
 stiffest mode of penalty contact is usually friction near zero slip, a viscous damper of
-slope ``1.5 mu N / v_max`` per contact point (`cstorm.contact`). Measured on the
-tumbler standing on its foot with its arms down: RK4 at 4 ms biased the base pitch rate
+slope ``1.5 mu N / v_max`` per contact point (`cstorm.contact`). An example: the
+tumbler standing on its foot with its arms down: RK4 at 4 ms biases the base pitch rate
 by 0.035 rad/s (3 ms and below agree with 0.25 ms to 5 digits); the linearization here
 puts RK4's limit at 3.77 ms (a mode of rate 738 1/s dominated by ``root_pitch``), and
 simulations at 3.7 / 3.85 ms from that posture agree / disagree with 0.25 ms.
@@ -56,7 +56,7 @@ dynamics' states, not those of a possibly unstable step; the same compiled rollo
 `cstorm.report.fidelity`'s ``"fine"`` check), sampled at ``n_states`` (201) times from
 the initial state to the end. The tumbler's ``start`` segment shows why: its initial
 state (arms overhead) allows 4.84 ms, the arms-down posture it moves to 3.75-3.77 ms
-(measured along its guess: past 4 ms for the last 0.52 s). Give ``along=solution``
+(along its guess: past 4 ms for the last 0.52 s). Give ``along=solution``
 (a `Solution`: its controls rolled out likewise) to check a planned motion,
 ``along="start"`` for the initial state alone, ``q``/``v`` for one state of your
 choice, or ``along={"q": ..., "v": ...}`` for given states. It is a linear,
@@ -72,8 +72,7 @@ contact structure (shared by the segments of a sequence and by every state), ~10
 the tumbler with contact (~1 s for a two-joint model without contact), then ~3 ms per
 state (~0.6 s for 201 states); the rollout at ``dt / 4`` compiles once per horizon and
 structure (~5 s for the tumbler; `cstorm.report.fidelity` reuses it) and runs in ~1 s.
-Measured: the tumbler's ``start`` segment 16 s cold, 5 s with the linearization
-compiled. ``cstorm solve`` runs the check on every segment before solving and along the
+``cstorm solve`` runs the check on every segment before solving and along the
 solution after it.
 """
 

@@ -18,9 +18,8 @@ jacfwd reference of `derivatives_ad` instead.
 Algorithm. Per-body and per-DoF quantities are stacked along a trailing axis (twists
 (6, n), 3x3 blocks (3, 3, n)), so each step is one elementwise expression over all bodies
 or DoFs; sums along the tree (twists towards the leaves, inertias and forces towards
-the roots) are products with the static ancestor matrix. (Measured on TALOS under
-`vmap`: compile 16-19 s instead of 83-86 s for the per-body unrolled form, and ~10 %
-faster to run; see benchmarks/README.md, session 27.)
+the roots) are products with the static ancestor matrix. (On TALOS under `vmap` this
+compiles about 5x faster than a per-body unrolled form and runs ~10 % faster.)
 1. `_kinematics`: world placements, world motion subspace columns ``J`` (6, nv), body
    twists ``ov``, world inertias ``oI``, momenta ``h``, and the composite (subtree)
    inertias ``Ycrb`` and their velocity variations ``doYcrb = sum (ov x* oI - oI ov x
@@ -428,9 +427,8 @@ def _take(X, idx, axis=0):
 
 
 # Above this many DoFs the hybrid layer multiplies S into dq, dv and M[:, a] separately
-# rather than into their concatenation. Measured under `vmap` 4096 (same process, five
-# rounds): Solo12 (18 DoF) 16.7-19.4 us concatenated against 20.2-27.7 us separately;
-# TALOS (38 DoF) 63.6-79.6 us separately against 69.7-77.6 us concatenated.
+# rather than into their concatenation: under `vmap` the concatenation is faster for
+# Solo12 (18 DoF), the separate products for TALOS (38 DoF).
 _CONCAT_MAX_NV = 24
 
 
@@ -496,8 +494,7 @@ def _df_ext(model, act, Sp, Jc):
     when every DoF is active), for an active one the unit vector ``e_j``, which only
     writes ``-J_j^T`` into row j (a static mask). Each body's passive sum is written out
     directly rather than accumulated down the tree: under `vmap` that fuses into one loop
-    over the output (measured on TALOS, batch 4096: 11 us per configuration against
-    15-16 us for the accumulation; writing the 60 KB output alone takes ~2.5 us)."""
+    over the output (on TALOS about 30 % faster than the accumulation)."""
     anc, dj, *_ = _tree_masks(model)
     nv, nb = model.nv, model.n_bodies
     dtype = Jc.dtype

@@ -61,71 +61,29 @@ steps; with 0.3 a loaded foot creeps at a few cm/s instead of ~1 cm/s). Standing
 the foot's end spheres rest about 4.4 mm above the ground (the force ramp starts at
 ``d_on``).
 
-Status of the problem (`hopper`): SOLVED (2026-12-02)
------------------------------------------------------
-``cs.solve(cs.examples.hopper())`` from the default guess, on the shared 2-core machine
-(load 2-3 from other jobs): success, 12/12 criteria, 247 SLSQP iterations, 286 s of
-which 91 s compile (cold cache), cost 3003.7 N^2 m^2 s (19 stages: 2 penalty stages, the
+Problem (`hopper`)
+------------------
+Hop at least 0.15 m forward with a flight phase and land at rest: 1.5 s, 16 control
+points per hinge, 5 shooting intervals; 19 stages (2 landing-penalty stages, the
 12-stage landing `RAMP`, 5 stages tightening the every-step torque limits 1.6x -> 1x).
-
-- The motion (pictures looked at): the robot crouches, rocks back onto its heel, lifts
-  the heel, pushes off the toes and leaves the ground at 0.65 s; the torso leans back to
-  0.60 rad at the push-off (the `PitchBound` is active); in flight (0.14 s with every
-  point clear of the force band, the heel up to 19 cm) the leg swings forward and the
-  heel lands at 0.79 s, 0.14 m ahead of where it started
-  (hard: a 2.3 kN peak, 15x body weight, for a few ms; 5.0 mm penetration), the foot
-  rocks heel-toe three times while the legs straighten, and it stands still from ~1.35
-  s. The foot does not slide after the landing (heel within 1 cm of its landing spot).
-- At the end: base speed 8.0e-4 (tolerance 1e-3), acceleration 0.28 (1.0), height and
-  pitch 0.35 mm and 0.7 mrad from the standing equilibrium; the hold test (1 s more, joints
-  locked): the base moves 0.24 mm and 0.18 mrad and ends at 9e-7 m/s. Torque on every
-  step: 1.0000x the limit (the ankle at the landing).
-- Fidelity: 1.0 mm / 0.004 deg at dt/4 and with DOP853, but the final base speed of the
-  re-simulations is 2.4e-3 m/s against the plan's 8e-4: the heel's hard landing is
-  where RK4 at 4 ms is least accurate (the step check is ok: limit 4.15 ms along the
-  solution, a 670 1/s pitch mode at 0.94 s).
-
-What made it solvable (the earlier formulation, below, stalled at a 1.5e-4 landing
-tolerance with a motion that leaned back 57 deg and slid the 0.15 m after landing):
+Why the formulation is what it is:
 
 - the end posture is free within `END_POSTURE_TOL` (0.03 rad per hinge) and the base's
   end is asked for as velocities and accelerations within tolerances (`AtRest`'s
   ``accel_tol``) with the height and pitch only within 3 mm / 3 mrad. With the posture
   pinned, the terminal base state is the contact's passive settling and barely moves
-  with the controls; a free posture moves the balance on the foot directly;
-- 1.5 s instead of 1.2, 16 control points instead of 12, 5 shooting intervals: room and
-  authority to settle after the landing (measured: at 1.2 s / 12 points the same
-  formulation stalls at stage 3-5 with violations 0.3-8);
+  with the controls (the Jacobian of the terminal landing quantities has singular
+  values down to 2.5e-6); a free posture moves the balance on the foot directly;
+- 1.5 s with 16 control points leave room and authority to settle after the landing
+  (at 1.2 s / 12 points the plan stalls with violations 0.3-8);
 - `_planar.SlipPower` <= 40 W from stage 1 (a foot sliding 0.3 m/s under body weight is
-  ~50 W) and ``max_pitch`` 0.6 rad instead of 1.0;
-- "at rest" judged by the hold test rather than a 1e-2 m/s^2 acceleration bound: on the
-  contact springs (k/m ~ 3000 s^-2) 1e-2 m/s^2 is the equilibrium 3 micrometres away,
-  below what the controls can steer the passive settling to (see below).
+  ~50 W) and ``max_pitch`` 0.6 rad: without them the optimizer gains the distance by
+  leaning back and sliding the foot after the landing;
+- "at rest" is judged by the hold test rather than a 1e-2 m/s^2 acceleration bound: on
+  the contact springs (k/m ~ 3000 s^-2) 1e-2 m/s^2 is the equilibrium 3 micrometres
+  away, below what the controls can steer the passive settling to.
 
-The earlier formulation (default until 2026-12-02: 1.2 s, 12 control points, 4 shooting
-intervals, posture pinned, height/pitch/velocities all at ``land_tol`` down to 1e-6):
-
-- stages 0-15 (to the 2.5e-4 landing
-  tolerance) converge in 130 iterations and 210 s including a cold 95 s compile (single
-  shooting: 240 iterations, 333 s); stage 16 (1.5e-4) converges too, the hop of 0.15 m
-  with a 0.15 s flight, penetration 8.2 mm, base pitched back up to the 1 rad
-  `PitchBound`, cost 5.2e3 N^2 m^2 s. Stage 17 (1e-4) and the last (1e-6) diverge again:
-  SLSQP's first step of the stage is 1-2 rad (to rollouts that fall, violation ~1).
-- The 1.5e-4 motion is NOT a plausible forward hop (pictures looked at): root_x goes
-  +0.08 m, then back to -0.07 m by the end of the flight (0.45-0.66 s, the base
-  pitched back 57 deg), and the 0.15 m are gained after the landing by rocking and
-  sliding the foot forward (the smooth friction's creep, 0.66-1.1 s); penetration 8 mm
-  at the landing.
-- Why the tail fails (measured at the 1.5e-4 solution): the Jacobian of the five
-  terminal landing quantities restricted to the null space of the continuity
-  constraints has singular values 3.3, 0.31, 2.0e-3, 5.5e-4, 2.5e-6 (the smallest along
-  the terminal height, the next along the vertical velocity and a pitch/velocity
-  combination): with the hinges fixed at rest in the end posture for the last knot span,
-  the terminal base state is set by the passive settling on the contact and barely moves
-  with the controls.
-- Tail variants tried from the 1.5e-4 solution, all failed: a finer ramp; per-stage
-  trust regions 0.02 and 0.005; ``first_step`` 0.003-0.01; IPOPT; `LandingPenalty`
-  weight ramped 1e9-1e13 at fixed tolerance.
+Results and what the motion looks like: docs/examples.md.
 """
 
 from __future__ import annotations

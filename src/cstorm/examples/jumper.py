@@ -71,42 +71,18 @@ first as a terminal penalty ``w_land/2 (|z - z0|^2 + |pitch - pitch0|^2 + |v_bas
 with ``w_land`` ramped 1, 10, 100 (constraint level 0: flight, pitch, limits), then
 the landing constraints (level 1) at ``qtol = 5 mm/rad, vtol = 1 cm/s``, then ``1e-3``.
 
-**Status: not yet solved.** Closest so far (2026-12-02, not the default): the hopper's
-formulation, `_hopping.hop_problem` on this model (``q_rest`` the crouch of
-``crouch_angles(0.5)`` at `rest_configuration`, keyframes from `GUESS`, distance 0,
-1.0 s, RK4 at 4 ms, 16 control points, 5 shooting intervals, clearance 2 cm at some
-instant (no time window), ``max_pitch`` 0.5, ``w_land`` 1e4, the hopper's `RAMP` of
-velocity / acceleration / pose tolerances down to 8e-4 m/s, 0.8 m/s^2, 3 mm,
-``end_posture_tol`` 0.03 rad, the torque limits on every step after the ramp (1.5 ->
-1), last stage at tolerance 1e-6) converges: 535 SLSQP iterations, 364 s, cost 24.9
-N^2 m^2 s, a 0.35 s flight, landing at rest (speed 8e-4, hold test 0.6 mrad / 0.3 mm),
-torque 0.67x the limits on every step; every `hop_criteria` entry holds except the
-penetration: 15.8 mm at the landing (criterion 1 cm; k = 5e3 N/m stops a 2.7 kg robot
-falling from ~15 cm only that deep). With `ContactDistance` >= -9 mm from stage 1
-added, stages 0-7 converge and stage 8 onwards fail their line searches, ending where
-the rollout diverges. Next: a lower jump (a clearance window, or a bound on the
-flight's height) rather than a bare penetration bound, then make it the default.
-Measured with the original formulation (fast variant, ``dt = 4 ms``, SLSQP unless
-stated), none of these reached the landing at rest:
-
-- the schedule above without the pitch bound, from the crouch held still: stage 0
-  (``w_land = 1``) ends in a 0.16 s flight that lands lying down (pitch error 1.6 rad);
-  ``w_land = 10 .. 1e4`` cannot bring it back (SLSQP stops after one iteration), and the
-  landing constraints then fail ("Inequality constraints incompatible");
-- from the keyframe guess with ``w_land = 100`` and no pitch bound: falls over again
-  (pitch error 1.59 rad);
-- with the pitch bound and the trust box: "Positive directional derivative for
-  linesearch" after 29 iterations, pitch bound violated by 0.45 rad;
-- IPOPT from the keyframe guess with every constraint at once (``qtol = vtol = 1e-3``):
-  300 iterations (15 min on a shared 2-core machine), flight 0.21 s, landing height
-  within 0.2 mm but pitch 0.24 rad off and base speed 0.24 m/s at T.
-
-Suspected causes: in flight the pitch is fixed by the angular momentum at take-off,
-which the 12-point splines (knot spacing 0.14 s, longer than the push-off) shape only
-coarsely; on the ground the foot is pinned by stiff contact, so the linearized
-constraints ask for steps of radians. Next things to try: more control points in the
-push-off (non-uniform knots), a free final time, a take-off angular-momentum constraint,
-IPOPT with more iterations from the IPOPT iterate above.
+**Status: not yet solved.** The hopper's formulation (`_hopping.hop_problem` on this
+model: the crouch of ``crouch_angles(0.5)`` as ``q_rest``, keyframes from `GUESS`,
+distance 0, 1.0 s, RK4 at 4 ms, 16 control points, 5 shooting intervals, clearance 2 cm,
+``max_pitch`` 0.5, the hopper's `RAMP`, every-step torque limits) converges to a 0.35 s
+flight landing at rest and meets every `hop_criteria` entry except the penetration
+(15.8 mm at the landing against 1 cm: k = 5e3 N/m stops a 2.7 kg robot falling from
+~15 cm only that deep); a bare penetration bound makes the later stages fail their line
+searches. A lower jump (a clearance window, or a bound on the flight's height) is the
+next thing to try. The plan above (penalty, then landing constraints), SLSQP or IPOPT,
+does not reach the landing at rest: in flight the pitch is fixed by the angular
+momentum at take-off, which 12-point splines (knot spacing 0.14 s, longer than the
+push-off) shape only coarsely.
 
 Soft contact: the penalty law lets the foot sink into the ground under load: in the
 motions above the heel strike reaches 5-13 x body weight and 1.3-3.6 cm penetration

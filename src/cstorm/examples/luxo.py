@@ -45,37 +45,21 @@ v_max, so stiff at the touchdown, ~90 N on a light foot, that RK4 needs dt <= 1.
 an integration artefact, the re-simulation at dt/4 ending at 0.024 m/s and 14 deg/s.
 With 0.3 the limit is 2.8 ms and the plan runs at 2 ms).
 
-Problem (`luxo`) and measured result
-------------------------------------
+Problem (`luxo`)
+----------------
 `_hopping.hop_problem`: start at rest in `REST_ACTIVE` at the contact equilibrium, hop
 forward at least one foot length (0.16 m, end to end), with a flight phase (every contact
 point 1 cm up at some instant, not scheduled), land at rest in the same posture; cost
 ``integral 1/2 |tau|^2 dt``; 1.0 s, RK4 at 2 ms, 14 control points per joint (24
-variables), SLSQP along the default solve plan (11 stages, see `hop_problem`),
+variables), SLSQP along the default solve plan (10 stages, see `hop_problem`),
 ``first_step = 0.1``; then the motor limits on every integration step (``dense_torque``,
 `_hopping.DENSE_RAMP`: 1.25x, 1.1x, 1x the limits at the 0.5 mm landing tolerance) and the
-final 1e-6 stage, 15 stages in all. Initial guess: `KEYFRAMES` (posture level).
+final 1e-6 stage, 14 stages in all. Initial guess: `KEYFRAMES` (posture level). Without
+the every-step limits (``dense_torque=False``) the limits hold only at samples, and at
+the landing the elbow needs more than its 6 N m between two of them.
 
-Measured (`cstorm solve luxo`, 2-core machine, session 12, a CI run alongside): success,
-9/9 criteria. 96 SLSQP iterations, 242 s including a 55 s compile (about half on a quiet
-machine). Cost 1.1467 N^2 m^2 s, constraint violation 8e-10. Forward 0.1600 m; longest
-flight 0.232 s; end pose errors 1.0e-6 m (height) and 1.0e-6 rad (pitch); base speed
-1.0e-6; base acceleration 9.3e-3 m/s^2 (criterion 1e-2); deepest contact point 11.5 mm
-below the surface. Torques within the limits on every step: the elbow peaks at 0.991x
-its 6 N m at the landing (t = 0.65 s). Fidelity: the final passive state is 4.8e-5 m /
-0.017 deg from the plan (velocities 5.2e-4 m/s and 0.43 deg/s), checked with RK4 at
-0.5 ms and with DOP853; the time step is within RK4's limit (2.93 ms) along the whole
-solution. The plan's path depends on the last bits of the derivatives (session 8: 108
-iterations, cost 0.8647; a 1e-15 change of the Jacobians in session 11 made it fail at
-a violation of 4.8): docs/examples.md says what was tried.
-
-With the limits only sampled (``dense_torque=False``, the problem until session 7): 78
-iterations, cost 0.9947, but between two samples at the landing the elbow needed 6.69 N
-m, 1.11x its limit. The dense stages cost 30 iterations and found a cheaper hop.
-
-Before session 6 the problem ran at 4 ms with ``v_max = 0.1``. It solved in 70
-iterations with cost 1.148, but on today's JAX/CPU its last stage (land_tol 1e-6)
-diverges, and the landing's velocities were not the dynamics' (see above).
+The plan's path depends on the last bits of the derivatives: a 1e-15 change of the
+Jacobians can make it fail. Results: docs/examples.md.
 """
 
 from __future__ import annotations

@@ -2,202 +2,83 @@
 `MotionSequence` of four segments, each solved from the state where the previous one
 ended, each minimizing the integral of squared active torque.
 
-Robot: `cstorm.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m / 1.5 kg,
-arms 0.25 m / 0.5 kg, capsule radii 0.03 / 0.04 / 0.025 m; hip and shoulder active,
-limits +-2.8 / +-3.0 rad, 12 / 8 N m; passive planar base ``root_x, root_z,
+Robot: `cstorm.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m /
+1.5 kg, arms 0.25 m / 0.5 kg, capsule radii 0.03 / 0.04 / 0.025 m; hip and shoulder
+active, limits +-2.8 / +-3.0 rad, 12 / 8 N m; passive planar base ``root_x, root_z,
 root_pitch`` on the torso; a foot and a palm capsule across the ends of the legs and
-arms; every number documented there). Ground contact through the
-smooth penalty model on both end spheres of every capsule (10 contact points); no
-contact schedule is given to the optimizer.
+arms; every number documented there). Ground contact through the smooth penalty model
+on both end spheres of every capsule (10 contact points); no contact schedule is given
+to the optimizer.
 
 Conventions: ``root_pitch`` rotates the torso about the world y axis; positive pitch
 tips the torso's top (shoulders) towards +x, so the whole sequence is one forward
 revolution: pitch 0 (standing) -> pi (handstand) -> 3 pi / 2 (lying, rolling) -> 2 pi
 (standing again). ``hip = 0``: legs straight below the torso; ``shoulder = 0``: arms
-straight above it (overhead), ``shoulder = 3.0``: arms hanging down in front of the body
-("arms down", 3.0 rad is the joint limit; in the plane the arms overlap the torso: the
-model has no self-collision, as in the feasibility study).
+straight above it (overhead); ``shoulder = 3.0``: arms hanging down in front of the body
+("arms down", the joint limit; in the plane the arms overlap the torso: the model has no
+self-collision).
 
-Contact (DESIGN.md feasibility study): ``k = 5e3 N/m, c = 100 N s/m, d_on = 0.01 m,
-d_off = 0``, smooth non-negativity ``eps = 0.01 N``, friction ``mu = 0.8`` (rubber
-hands and feet on a mat; at the draft's 0.3 the feet slide during the pike),
-``v_max = 0.1 m/s``. Resting on its foot (or palm) the robot sits where the ramped
-springs of the three level contact points carry its weight, 5.5 mm above the ground;
-the nominal postures below are placed at that height.
+Contact: ``k = 5e3 N/m, c = 100 N s/m, d_on = 0.01 m, d_off = 0``, smooth
+non-negativity ``eps = 0.01 N``, friction ``mu = 0.8`` (rubber hands and feet on a mat;
+at the draft's 0.3 the feet slide during the pike), ``v_max = 0.1 m/s``. Resting on its
+foot (or palm) the robot sits where the ramped springs of the three level contact points
+carry its weight, 5.5 mm above the ground; the nominal postures are placed at that
+height.
 
-Segments (each ``T`` seconds, RK4 at ``dt`` = 2 ms (`DT`), quintic B-splines with ``n_ctrl`` =
-12 control points per active joint, start position/velocity from the previous segment
-by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
+Segments (each ``T`` seconds, RK4 at ``dt`` = `DT` = 2 ms, quintic B-splines with
+``n_ctrl`` = 12 control points per active joint, start position and velocity from the
+previous segment by construction; cost ``integral 1/2 |tau|^2 dt``, N^2 m^2 s):
 
-1. ``handstand`` (`HANDSTAND_T` = 2.5 s, `HANDSTAND_N_CTRL` = 15 control points): from
-   the start position (standing at rest, arms down) to a balanced handstand at rest:
-   pitch = pi, hip = shoulder = 0 (body straight, arms overhead on the ground), base at
-   rest (the joints' end values and rest are built into their splines). Plan: the
-   terminal pitch at pi (equality, level 0) from the first stage, then
-   `HANDSTAND_REST_RAMP` (level 1): base velocities within ``vtol``, accelerations within
-   ``atol``, the pitch within ``ptol`` and torque limits scaled by ``tau_factor``,
-   tightened together from (1 m/s or rad/s, 4x the limits) to (8e-3, 1x) in 7 stages,
-   each boxed to `HANDSTAND_REST_TRUST` = 0.1 rad around where it starts. Guess
-   `HANDSTAND_KEYFRAMES`: a kick whose rollout passes through a handstand at 2.0 s.
-2. ``roll`` (1.5 s): from the handstand, tip over forward and roll along the back:
-   at the end the torso lies on the ground (its centre lower than 0.1 m) with pitch
-   >= 3 pi / 2 - 0.2 and still rotating forwards (pitch rate >= 1 rad/s), joints
-   free (``roll_end="free"``, the segment alone) or, in the `tumbler` sequence, ending
-   at `ROLL_END`'s joint positions and velocities (``roll_end="nominal"``, by
-   construction: the start the standing segment's guess and plan are tuned for). Level
-   0: the pose; level 1: the pitch rate and the torque limits. Guess
-   `ROLL_KEYFRAMES` (rolled out from the nominal handstand it tips forward and lands on
-   its back, pitch 4.76, but stops: pitch rate -0.3 rad/s at T).
-3. ``standing`` (2.0 s): from the roll, come up onto the feet: pitch = 2 pi,
-   hip = shoulder = 0, base at rest. Plan: the terminal pitch at 2 pi (level 0, boxed to
-   `STANDING_PITCH_TRUST` = 0.3 rad, first step `STANDING_FIRST_STEP` = 0.05 rad), then
-   `REST_RAMP` (level 1), each stage boxed to 0.2 rad. Guess `STANDING_KEYFRAMES`.
+1. ``handstand`` (`HANDSTAND_T` = 2.5 s, `HANDSTAND_N_CTRL` = 15, `HANDSTAND_DT` =
+   1.25 ms): from the start position (standing at rest, arms down) to a balanced
+   handstand at rest: pitch = pi, hip = shoulder = 0. Plan: the terminal pitch at pi
+   (equality, level 0), then `HANDSTAND_REST_RAMP` (level 1): base velocities within
+   ``vtol``, accelerations within ``atol``, the pitch within ``ptol`` and torque limits
+   scaled by ``tau_factor``, tightened together from (1 m/s or rad/s, 4x the limits) to
+   (8e-3, 1x), each stage boxed to `HANDSTAND_REST_TRUST` around where it starts. Guess
+   `HANDSTAND_KEYFRAMES`: a kick whose rollout ends on the hands.
+2. ``roll`` (1.5 s): from the handstand, tip over forward and roll along the back: at
+   the end the torso lies on the ground (its centre lower than 0.1 m) with pitch >= 3 pi
+   / 2 - 0.2, still rotating forwards (pitch rate >= 1 rad/s); joints free
+   (``roll_end="free"``) or, in the `tumbler` sequence, ending at `ROLL_END`'s joint
+   positions and velocities (``roll_end="nominal"``: the start the standing segment's
+   guess and plan are made for). Level 0: the pose; level 1: the pitch rate and the
+   torque limits. Guess `ROLL_KEYFRAMES`.
+3. ``standing`` (2.0 s): from the roll, come up onto the feet: pitch = 2 pi, hip =
+   shoulder = 0, base at rest. Plan: the terminal pitch at 2 pi (level 0, boxed to
+   `STANDING_PITCH_TRUST`, first step `STANDING_FIRST_STEP`), then `REST_RAMP` (level
+   1), each stage boxed to 0.2 rad. Guess `STANDING_KEYFRAMES`.
 4. ``start`` (2.0 s): from standing (arms overhead) back to the start position: pitch =
-   2 pi within 0.05 rad, hip = 0, shoulder = 3.0 (arms down), base at rest. Plan:
-   `REST_RAMP` only, with a per-stage trust region of 0.05 rad
-   (``solve_options["trust_region"]``, see `cstorm.solve`) and ``first_step = 0.05``.
-   Guess `START_KEYFRAMES`: lower the arms while the hip counterbalances.
+   2 pi within 0.05 rad, hip = 0, shoulder = 3.0, base at rest. Plan: `REST_RAMP` only,
+   each stage boxed to 0.05 rad (``solve_options["trust_region"]``, see `cstorm.solve`)
+   with ``first_step = 0.05``. Guess `START_KEYFRAMES`: lower the arms while the hip
+   counterbalances.
+
+"At rest" at a segment's end is checked by the success criteria: base velocities within
+`REST_TOL` and a hold test (`HOLD`: 1 s with the joints locked, the robot stays put).
 
 Joint position limits hold by construction (control points bounded by the limits; see
-`cstorm.optimize.solve.variable_bounds`); torque limits are sampled inequalities
-(`ScaledTorqueLimits`, 42 samples), and with ``dense_torque=True`` also hold on every
-integration step (a level after the plan, `DENSE_RAMPS`; not the default, see Status).
+`cstorm.optimize.solve.variable_bounds`). Torque limits are sampled inequalities
+(`ScaledTorqueLimits`, about 40 samples): at the contact impacts the splines'
+accelerations need more than the motors have for a few ms between samples (the
+handstand's landing on the hands, the roll's on the back, standing's legs swinging down
+onto the floor need 2.3-2.9x the limits), so these three motions are not yet feasible
+for the stated motors; ``cstorm solve`` reports it under ``torque_limits`` in
+summary.json. With ``dense_torque=True`` the limits also hold on every integration step
+(a level after the plan, `DENSE_RAMPS`); the roll, standing and start segments solve
+that way on their own, the handstand does not, so it is not the default.
 
-Default initial guesses: posture-level keyframes joined by smoothstep ramps
+Initial guesses are posture-level keyframes joined by smoothstep ramps
 (`_hopping.keyframe_guess`), documented at each constant. Where a guess counterbalances
-(the hip at 0.16 / 0.1 rad while the arms swing), the value was chosen from a scan of
-rollouts: standing on the compliant foot is only marginally stable (the foot's
-rotational contact stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging
-the arms without it tips the robot onto its face.
+(the hip at 0.1-0.16 rad while the arms swing), the value comes from a scan of rollouts:
+standing on the compliant foot is only marginally stable (the foot's rotational contact
+stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging the arms without it
+tips the robot onto its face.
 
-Status (measured on a 2-core machine, RK4 at 2 ms unless said, load 1-3)
-------------------------------------------------------------------------
-- The whole sequence (`tumbler`, ``cstorm solve tumbler``, ``cstorm demo``): **solved
-  chained**, session 23 (structured-inertia analytic derivatives, Jacobians moved by
-  ~1e-14): 24/24 criteria, 493 SLSQP iterations (177 / 153 / 86 / 77), costs 12.232 +
-  4.212 + 17.018 + 0.155 = 33.616; 450 s from a cold cache (148 s compiling; 399 / 23 /
-  15 / 12 s) on a machine where the session-19 code took 466 s along its 564-iteration
-  path; fidelity 0.50 mm / 0.067 deg. The same code on a quieter machine (session 25):
-  the same path in 308 s cold (265 / 17 / 14 / 12 s; 62 s compiling), 337 s with
-  ``MotionSequence.solve_options["precompile"] = False`` (165 s compiling, 171 s
-  iterating). Before (session 19, every single-shooting
-  segment with ``derivatives="parallel"``, roll/standing/start with analytic contact derivatives and the constraint grid's
-  Jacobians only): 24/24 criteria, 564 SLSQP iterations (237 / 173 / 77 / 77), costs
-  10.741 + 4.203 + 16.987 + 0.155 = 32.085; 250 s with a warm compile cache (session
-  18), 334 s from a cold one (84 s compiling the handstand; 275 / 29 / 15 / 15 s);
-  fidelity 0.28 mm / 0.007 deg. The handstand keeps plain autodiff contact derivatives
-  and every step's Jacobians: with either change (Jacobians moved by ~1e-14) its plan
-  stalled at the 1.1x-torque stage (violation 10 and 800). Session 17: 567
-  SLSQP iterations (237 / 136 / 116 / 78), 305 s including 30 s of compile (load ~1,
-  partly cached; the later segments compile while the handstand solves; the handstand
-  uses ``derivatives="parallel"``), 342 s for the whole ``cstorm demo``; costs 10.741 +
-  4.200 + 17.583 + 0.155 = 32.68; every segment's final state within 0.26 mm / 0.007
-  deg of its re-simulation at dt/4 and with DOP853. Before the parallel rule (same
-  session): 510 iterations (203 / 148 / 82 / 77), 424 s, costs 12.589 + 2.902 + 16.877 +
-  0.155. Session 13:
-  528 iterations (135 / 237 / 78 / 78), 593 s, costs 13.715 + 4.248 + 16.877 + 0.155.
-  The handstand's path depends on rounding: with the analytic contact derivatives (equal
-  to autodiff's to 1e-14) its 1.2x stage stalled at violation 1.55, and once refined
-  (``solve_options["refine"]``) its last stage crept for 500 iterations; hence
-  ``contact_jacobians="autodiff"`` and ``refine = 2`` here. What
-  makes it chain: the roll ends with its joints at `ROLL_END`'s (``roll_end="nominal"``;
-  with free joints the roll from the solved handstand ended with the hip at -1.82 rad
-  and -4.6 rad/s), and standing's guess comes up onto the feet from a neighbourhood of
-  starts (`STANDING_KEYFRAMES`, scanned from four starts; its pitch stage boxed). The
-  chained roll's base ends 0.28 m further along x than `ROLL_END`'s and pitching at
-  1.27 rad/s, not 1.00; standing from there and from `ROLL_END` converges to the same
-  motion (78 and 82 iterations, cost 16.88 and 16.80). History: session 8 solved the
-  chain (652 iterations, cost 30.45) with the previous standing guess; after
-  rounding-level changes to the dynamics, session 12 measured standing stalling from the
-  chained roll's end (every stage at its iteration limit, violation ~1.6): that guess,
-  once its control points were clipped to the joint limits as the solver does, ended
-  face down, and standing's unboxed first stage jumped between lying on the back and on
-  the face.
-- ``start`` (standing, arms overhead -> arms down, at rest): **solved** from the default
-  guess by the plan above: 78 SLSQP iterations, 43-54 s including a 15 s compile, cost
-  0.1551 N^2 m^2 s, violation 3e-9; every criterion holds (pitch 3.1 mrad from upright,
-  base rates <= 8e-3, hold test: the pitch moves 3.9 mrad in 1 s, speeds 4e-4 after it);
-  fidelity 1.6e-10 m / 4e-7 deg (velocities 1.2e-7 m/s, 3e-4 deg/s) at dt/4 and with
-  DOP853. CI solves it (tests/test_tumbler.py).
-- ``roll`` (from the nominal handstand): **solved**: 140 iterations, 66 s, cost 4.345,
-  violation 0; it ends lying on its back at pitch 4.73 (torso centre 4.6 cm up) rolling
-  at 1.0 rad/s; fidelity 0.1 mm / 3e-4 deg.
-- ``handstand`` (from the start position): **solved** from the default guess (a kick
-  onto the hands) by the plan above, at `HANDSTAND_DT` = 1.25 ms: 175 SLSQP iterations,
-  ~220 s, cost 13.23 N^2 m^2 s, violation 1.5e-9, 7/7 criteria (pitch within 1.5e-9 of
-  pi, base rates <= 8e-3, hold test 3.2 mrad); fidelity 0.31 mm / 0.042 deg (velocities
-  1.4e-4 m/s, 0.021 deg/s); step check along the solution ok (limit 1.48 ms). The
-  robot dives forward 0.31 m onto its hands: the palm's front edge lands at 0.82 s
-  (about 180 N for a few ms, 15 mm into the compliant floor), it rocks onto the whole
-  palm by 1.5 s and the motors settle it. What made it work, each measured:
-  - a guess that ends near the answer: scans of 810 and 729 kick keyframe sets found a
-    few whose rollouts end on the hands at T (`HANDSTAND_KEYFRAMES`); the handstand is an
-    inverted pendulum on the palm, so most neighbours fall to either side, and one
-    neighbour, ``(0.6 s: hip -1.0, shoulder 2.3), (1.6 s: -0.3, -0.3)``, stalls at the
-    rest ramp's second stage;
-  - 2.5 s with 15 control points, not 2.0 s with 12: the last two knot spans settle
-    the body (in 2.0 s an earlier kick's 1.1x-torque stage stalled, the shoulder needing
-    13.5 N m);
-  - a small first step and a box on the pitch stage (`HANDSTAND_FIRST_STEP`,
-    `HANDSTAND_PITCH_TRUST`): with SLSQP's default first step of ~1 rad it tipped the
-    guess off its hands, and the pitch stage wandered for 30-110 iterations into a
-    different end each run (one run of 711 s converged, cost 11.1; others stalled);
-  - 1.25 ms, not 2 ms: see `HANDSTAND_DT` (the 2 ms solution, cost 20.43, passed every
-    criterion in its own integrator but not when re-simulated finer).
-  Plans that failed in earlier sessions, all from guesses that stay on the feet: a
-  continuation on the terminal pitch (0.15 ... pi: stalls at 1.4 -> 1.8, where a plank
-  must be levered about the hands by the 8 N m shoulder), with the torque limits
-  enforced throughout, with the hands planted at T, IPOPT, the multiple-shooting
-  ``guess="bridge"`` (stalls at violation 1.7), a continuation on the end posture
-  through a pike bridge, and physical targets (CoM over the hands, feet raised).
-- ``standing`` (from `ROLL_END`, the roll's end; ``cstorm solve tumbler --segment
-  standing``): **solved** from `STANDING_KEYFRAMES` (legs swung forward and down while
-  the arms swing back, a bridge on hands and feet, then up onto the feet): 82
-  iterations, 68 s including a 15 s compile, cost 16.80, violation 5e-10, 7/7 criteria
-  (upright, hold test 1.5 mrad); fidelity 6 um / 9e-4 deg. The default guess (joints
-  straight) stays on its back and gives the terminal pitch no useful gradient. In the
-  slow tests.
-
-Torque limits between samples (`cstorm.report.torque_check`, which reads every step;
-`ScaledTorqueLimits` samples 42 points): at the contact impacts the splines'
-accelerations need far more than the motors have for a few ms. In the chained sequence
-(session 13): the handstand's landing on the hands, shoulder 2.74x its 8 N m; the roll's
-landing on the back, hip 2.83x its 12 N m; standing, shoulder 2.30x (the legs' swing
-down onto the floor, 0.18 s in; session 8's standing motion needed 1.04x); ``start``
-0.07x. So
-the handstand, roll and standing motions are not yet feasible for these motors.
-``cstorm solve`` reports it under ``torque_limits`` in summary.json and warns.
-
-``dense_torque=True`` (the limits on every step, `constraints.TorqueLimits` with
-``dense``, tightened along `DENSE_RAMPS` after the plan), measured in session 8 (with the
-previous standing guess):
-- ``roll`` from the solved handstand's end, joints pinned: **solved within the limits on
-  every step**, 48 iterations, 51 s, cost 1.88 (less than the sampled plan's 3.99),
-  hip 0.56x, shoulder 0.96x. But standing from its end (0.25 mm and 1.8 mrad from the
-  sampled roll's end, pitching at 1.00 rad/s instead of 1.23) stalls in its first
-  stages: standing's plan is that sensitive to its start.
-- ``standing`` from the sampled roll's end: solved within the limits on every step, 403
-  iterations, 391 s (ramp 3.0 -> 1.0; load ~3), cost 11.61, shoulder 0.997x.
-- ``start`` from there: solved, 105 iterations, 69 s, cost 0.140.
-- ``handstand``: the plan converges to 2.2x, then stalls at 1.9x (iteration limit, then
-  violation 0.2-0.4 at 1.6x): the dive lands on the hands too hard, and a softer landing
-  needs a different guess.
-Session 13, with the new standing guess, from the session-13 chain's handstand end:
-- ``standing`` from the sampled roll's end (`DENSE_RAMPS`: 2.4x -> 1.0x): **solved within
-  the limits on every step**, 153 iterations, 152 s, cost 12.82 (the sampled plan's
-  motion: 16.88, shoulder 2.30x), 7/7 criteria, shoulder 0.998x, hip 0.96x.
-- ``roll`` (dense, joints pinned): solved within the limits on every step, 320
-  iterations, 222 s, cost 1.77, hip 0.998x, fidelity 0.4 mm / 0.004 deg; it ends pitching
-  at 1.00 rad/s. Standing (dense) from that end had not finished after 16 minutes
-  (stopped), so the every-step chain is still open.
-Hence not the default yet.
-
-Why earlier sessions failed on ``start``: they planned at 4 ms, where the base velocities
-were biased by RK4's instability on the friction's viscous mode (see `DT`), so the rest
-conditions (1e-2 .. 1e-3) the optimizer chased were integration artefacts and no solver
-converged (their notes blamed the nonlinearity of rocking on the compliant foot; the
-measured Jacobian singular values 7.2 / 0.081 / 2.2e-4 of the terminal base velocities
-were of the artefact). At 2 ms the same plan converges in 78 iterations.
+SLSQP's path through the handstand's plan follows the last bits of the floating-point
+Jacobians; the handstand therefore keeps plain autodiff contact derivatives and every
+step's Jacobians (the settings its plan was made with), and failed stages are refined
+(``solve_options["refine"]``). Results: docs/examples.md.
 """
 
 from __future__ import annotations
@@ -302,8 +183,8 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
 
 #: the handstand's duration (s) and control points per joint: the kick below takes 2 s,
 #: the last 0.5 s (two knot spans) leave the motors time to settle the body on the palm
-#: (in 2.0 s, with 12 control points, an earlier kick's rest ramp stalled at its
-#: 1.1x-torque stage: the shoulder needed 13.5 N m to stop the tipping in time)
+#: (in 2.0 s with 12 control points the rest ramp stalls at its 1.1x-torque stage: the
+#: shoulder would need 13.5 N m to stop the tipping in time)
 HANDSTAND_T, HANDSTAND_N_CTRL = 2.5, 15
 #: the default initial guess of the handstand, (time s, (hip, shoulder) rad) with
 #: smoothstep ramps between (see `_hopping.keyframe_guess`): a kick. Fold at the hip
@@ -383,18 +264,15 @@ START_KEYFRAMES = ((0.0, (0.0, 0.0)), (0.5, (0.1, 1.5)), (1.0, (0.0, ARMS_DOWN))
 #: the standing segment's default guess, (fraction of T, (hip, shoulder) rad): from the
 #: roll's end (lying on the back, legs up), swing the legs forward and down hard (hip
 #: 2.4 rad at 0.35 T) while the arms swing back (shoulder -2.0), fold slightly the other
-#: way (hip -0.3, shoulder -0.6 at 0.6 T), straight by 0.8 T and hold. Chosen (session
-#: 13) from scans of 864 and 360 keyframe sets rolled out, with the control points
+#: way (hip -0.3, shoulder -0.6 at 0.6 T), straight by 0.8 T and hold. Chosen from scans of 864 and 360 keyframe sets rolled out, with the control points
 #: inside the joint limits as the solver sees them, from four starts: `ROLL_END`, the
 #: end of a chained roll (pitching at 1.27 rad/s, not 1.00, 0.28 m further on), and
 #: `ROLL_END` with its pitch rate x0.8 and x1.3; scored by the worst of the four. From
 #: every one it ends on its feet within 0.06 rad of upright, pitching at 0.08 rad/s, and
 #: its neighbours (shoulder -0.2 or -1.0 at 0.6 T) within 0.08 rad. Most keyframe sets
 #: end lying on the back or on the face (pitch 2 pi -+ 1.59), which gives the terminal
-#: pitch no useful gradient. The previous guess, ``(0.6 T: -1.0, -1.0), (1.0: straight)``,
-#: tuned in session 8 without the limits' clipping, ended on the face once clipped, and
-#: standing's first stage then jumped between lying on the back and on the face (steps
-#: of 2-4 rad, 60 iterations): from the chained roll's end it never came up.
+#: pitch no useful gradient; a guess scanned without clipping its control points to the
+#: joint limits can end on the face once the solver clips them.
 STANDING_KEYFRAMES = ((0.0, (-1.0, 0.0)), (0.35, (2.4, -2.0)), (0.6, (-0.3, -0.6)), (0.8, (0.0, 0.0)),
                       (1.0, (0.0, 0.0)))
 #: standing's first stage (the terminal pitch at 2 pi) is boxed to this (rad) around the
@@ -501,8 +379,8 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     # the handstand's contact derivatives by plain autodiff: its plan was verified with
     # them. The analytic rule (the default, and the other segments') gives the same
     # Jacobians to 1e-14, yet SLSQP's path through the handstand's plan splits at its
-    # fourth stage and then stalls (session 17: the 1.2x-torque stage at violation 1.55;
-    # refined, the final stage still crept past 500 iterations at violation 3e-5)
+    # fourth stage and then stalls (the 1.2x-torque stage at violation 1.55; refined, the
+    # final stage creeps past 500 iterations at violation 3e-5)
     common = dict(env=env, contact=contact, costs=[C.TorqueSquared()], name=name, n_path_samples=n_path_samples,
                   shooting=shooting, contact_jacobians="autodiff" if name == "handstand" else "analytic")
     if roll_end not in ("free", "nominal"):
@@ -534,8 +412,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         # every step's grid-point Jacobians, as when its plan was verified: with the
         # constraint grid's only (`MotionProblem.record_grid_only`, 240 instead of 330 ms
         # per evaluation) the Jacobians move by ~1e-14, and SLSQP's path stalls at the
-        # 1.1x-torque stage (violation 10 after 100 iterations; session 19, and with the
-        # analytic contact rule as well, session 18)
+        # 1.1x-torque stage (violation 10 after 100 iterations, with either contact rule)
         p.record_grid_only = False
         if guess == "bridge":
             T_ = p.t_final
@@ -588,8 +465,8 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     p.solve_options["refine"] = 2
     # the time-parallel tangent rule (`cstorm.rollout_tangents`): one values+Jacobian
     # evaluation of the handstand 330 ms against 643 ms by differentiating the scan, of
-    # the roll 72 against 231 ms, of standing and start ~145 against 289 ms (session 18,
-    # 2 cores); single shooting only (the multiple-shooting guess="bridge" was not
+    # the roll 72 against 231 ms, of standing and start ~145 against 289 ms (2 cores);
+    # single shooting only (the multiple-shooting guess="bridge" was not
     # measured with it)
     if shooting == 1:
         p.derivatives = "parallel"

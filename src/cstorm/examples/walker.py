@@ -63,32 +63,15 @@ tumbler values (k = 5e3 N/m, c = 100 N s/m for 3 kg) scaled by the mass ratio 23
 ``1.5 mu N / v_max``), ``v_max = 0.1 m/s``. With ``d_on > 0`` a foot at rest floats a few
 millimetres above the ground (the force ramp starts at ``d_on``).
 
-Status (measured on 2 shared cores, `cstorm solve walker` / `cs.solve`)
------------------------------------------------------------------------
-**Solved, every success criterion met**, from the default posture guess. What made it
-solve: multiple shooting (``shooting=4``, nodes guessed by carrying the posture forward
-at ``speed``), the speed ramp 0.25..1 with the intermediate stages cut at 30 iterations
-(uncut, stage 0 alone polished its cost for >300 iterations), the swing clearance
-switched on last, the "hold" posture guess and the start-velocity boxes. Stages: 0.2,
-0.4, 0.6 m/s (30 iterations each, violation ~1e-4 when cut), 0.8 m/s converged at
-iteration 112 (9e-6), then the level-1 stage.
-
-Default (with `SlipPower` <= 8 W at level 1): 412 SLSQP iterations, 652 s including
-~120 s of compile (machine loaded); violation 6e-10, cost 193.4 N^2 m^2 s, periodicity
-3e-10, speed error 2e-11, swing times 0.36 s (right) / 0.32 s (left), penetration
-0.36 mm. Slip power on the dense grid at most 9.7 W (the constraint sees 30 samples),
-friction work 2.3 J per step, tangential speed under > 20 N load <= 0.33 m/s (at
-touch-down). The feet alternate; the torso leans back 22-35 deg (pitch -0.39..-0.61
-rad); the swing foot's front sphere still hovers ~8.5 mm up (inside the 10 mm force
-ramp, a few N) for the last ~0.2 s of the swing before touch-down.
-
-Without the slip constraint (``slip_power=None``): 344 iterations, 268 s incl. 58 s
-compile, violation 1.6e-9, cost 157.2, 6/6 criteria, fidelity ok (5e-6 m, 5e-4 deg) —
-but the swing foot *skims*: for ~0.15 s its front sphere is 6.5-8 mm up carrying 11-47
-N while moving at 2.5 -> 0.4 m/s (slip power up to 68 W, friction work ~7 J per step);
-the criteria do not catch it (the swing-time criterion only needs 0.1 s fully
-unloaded). Not done yet: a slip criterion in `walker_criteria`; fidelity of the default
-(only checked for ``slip_power=None``); single shooting with the same plan.
+Solve plan
+----------
+Multiple shooting (``shooting=4``, nodes guessed by carrying the posture forward at
+``speed``), a speed ramp 0.2, 0.4, 0.6 m/s whose intermediate stages are cut at 30
+iterations (they only warm-start the next), the target speed, then the swing clearance
+and `SlipPower` (<= 8 W per constraint sample) at level 1. Without the slip bound the
+swing foot skims the ground inside the force ramp (``slip_power=None`` turns it off).
+The success criteria (`walker_criteria`) do not yet check slip. Results:
+docs/examples.md.
 """
 
 from __future__ import annotations
@@ -525,10 +508,7 @@ def fast_variant():
     per joint instead of 9), solved without the speed ramp: the speed constraint at
     level 0 cut at 30 iterations, then the swing clearance and the slip bound (level 1)
     to SLSQP tolerance 1e-6. Same criteria as `walker` (`walker_criteria` at 0.4 m/s).
-    Measured on 2 shared cores: 35 iterations, every criterion met (violation 1.7e-7,
-    swing times 0.275 s, penetration 2.4 mm). The gait is feasible, not polished: cost
-    1105 N^2 m^2 s, and the stance foot skips (off the ground ~0.05 s mid-step); the same
-    problem along the ramp 0.2 -> 0.4 m/s (151 iterations) finds one of cost 31.6.
+    The gait it finds is feasible, not polished (the stance foot skips mid-step).
     Returns the `MotionProblem` with that plan in ``solve_options``."""
     p = walker(**FAST, continuation=None)
     speed = FAST["speed"]

@@ -171,7 +171,7 @@ class TorqueLimits(Constraint):
 
     ``dense=False``: the torques on the constraint grid only (``S ~ n_path_samples``
     samples). A contact impact between two samples can then need several times the limit
-    for a few ms (measured: 2.9x on the tumbler's roll with 42 samples).
+    for a few ms (2.9x on the tumbler's roll with 42 samples).
     ``dense=True``: every integration step counts. The steps are split into one window per
     grid sample (`window_index`) and each window's ``+tau/limit`` and ``-tau/limit`` enter
     through a smooth maximum (`ks_max` with sharpness ``rho``, default 200): the same ``2 S

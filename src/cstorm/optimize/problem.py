@@ -272,8 +272,8 @@ class MotionProblem:
         self.derivatives = derivatives
         #: `evaluate` records the trajectory on the constraint grid only where it can (see
         #: `_record_rows`; with ``derivatives="parallel"`` the grid-point Jacobians of ~40
-        #: points instead of every step: the tumbler's start segment 204 -> 145 ms per
-        #: values+Jacobian). False: every step, as before; values and Jacobians equal to
+        #: points instead of every step, ~30 % less time per values+Jacobian on the
+        #: tumbler). False: every step; values and Jacobians equal to
         #: rounding (the batched Jacobians' rounding depends on the batch)
         self.record_grid_only = True
         self.segment = segment
@@ -652,15 +652,14 @@ class MotionProblem:
         if mode == "fwd":
             # the primal runs separately from the batched tangents, on purpose: fusing
             # them (one vmapped jvp with has_aux, ~10 % faster) moves the Jacobians by
-            # ~1e-15, and luxo's solve plan then fails (session 12): re-check its solve
+            # ~1e-15, and luxo's solve plan then fails: re-check its solve
             # test before changing this
             eye = jnp.eye(n, dtype=x.dtype)
             if self.derivatives == "parallel":
                 # the time-parallel rule evaluates the primal rollout once inside the JVP and
                 # its tangents from that (`cstorm.rollout_tangents`): take the values from
                 # there instead of a second rollout (the same code: the values and the
-                # Jacobians are bitwise those of the separate primal; the tumbler handstand's
-                # evaluation 402 -> 330 ms)
+                # Jacobians are bitwise those of the separate primal; ~20 % faster)
                 def jvp(t):
                     v_, t_, d_ = jax.jvp(y, (x,), (t,), has_aux=True)
                     return v_, d_, t_

@@ -6,7 +6,7 @@
   (the trajectory, contact data, segment labels) with cached forward kinematics.
 - `plots`: PNG plots (joint positions, torques, contact forces and distances, x-z paths).
 - `animation`: the GIF (and MP4 with ffmpeg) animation.
-- `demo`: the main demo (`cstorm demo`: the Luxo lamp's hop).
+- `demo`: the main demo (`cstorm demo`: the tumbler sequence).
 
 `cstorm.report.write_outputs` / ``cstorm solve`` and ``cstorm animate`` use them.
 """

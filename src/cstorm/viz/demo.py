@@ -4,12 +4,11 @@ motion, solved and written to files a person can look at.
 The demo is the draft paper's tumbling robot (`cstorm.examples.tumbler`): a
 `MotionSequence` of four segments, start -> handstand -> roll -> standing -> start, each
 solved by SLSQP with exact gradients through the smooth contact model from the state
-where the previous one ended, with minimal integral of squared torques (about 10-12 minutes
-on a 2-core machine). The demo writes the robot's description (``tumbler_info.txt``:
-tree, joints, masses, inertias, collision shapes) and then exactly what ``cstorm solve
-tumbler`` writes: ``summary.json``, ``solution.npz``, ``trajectory.csv``, PNG plots and
-``animation.gif``. ``cstorm solve luxo`` is the shorter alternative (the Luxo lamp's
-hop, 2-4 minutes; the demo until session 8).
+where the previous one ended, with minimal integral of squared torques. The demo writes
+the robot's description (``tumbler_info.txt``: tree, joints, masses, inertias, collision
+shapes) and then exactly what ``cstorm solve tumbler`` writes: ``summary.json``,
+``solution.npz``, ``trajectory.csv``, PNG plots and ``animation.gif``. ``cstorm solve
+luxo`` is a shorter alternative (the Luxo lamp's hop).
 """
 
 from __future__ import annotations

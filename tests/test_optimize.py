@@ -49,7 +49,7 @@ def test_gradients_match_central_differences(problem):
 
 def test_acrobot_swing_up_reaches_upright(problem, solution):
     s = solution
-    assert s.success, s.message
+    assert s.success and s.status is cs.Status.SOLVED, s.message
     qT, vT = s.trajectory["q"][-1], s.trajectory["v"][-1]
     assert abs(qT[0] - np.pi) < 1e-3 and abs(vT[0]) < 1e-3, (qT, vT)  # shoulder upright, at rest
     assert abs(qT[1]) < 1e-9 and abs(vT[1]) < 1e-9  # elbow: by construction
@@ -89,7 +89,7 @@ def test_keyboard_interrupt_returns_best_iterate(problem):
             raise KeyboardInterrupt
 
     s = solve(problem, callback=cb, max_iter=300)
-    assert not s.success and "interrupted" in s.message
+    assert not s.success and s.status is cs.Status.INTERRUPTED and "interrupted" in s.message
     assert s.iterations == 6 and len(s.history) == 6
     # the best iterate of the interrupted stage: least violation (or lowest feasible cost)
     stage = seen[-1]["stage"]
@@ -138,7 +138,7 @@ def test_diverged_final_iterate_keeps_the_last_sound_stage(problem, monkeypatch)
     monkeypatch.setattr(S, "_run_slsqp", run)
     s = solve(problem, schedule=[dict(params={}, level=0), dict(params={}, level=0)], max_iter=300)
     assert calls == [0, 1]
-    assert not s.success
+    assert not s.success and s.status is cs.Status.DIVERGED
     assert "diverged" in s.message and "end of stage 0" in s.message, s.message
     assert not bool(s.trajectory.get("diverged", False))
     assert np.all(np.isfinite(s.trajectory["q"])) and np.max(np.abs(s.x)) < 1e3
@@ -189,7 +189,7 @@ def test_checkpoint_and_resume(problem, solution, tmp_path):
             raise KeyboardInterrupt
 
     s1 = solve(problem, checkpoint=str(ck), callback=stop, max_iter=300)
-    assert "interrupted" in s1.message and ck.exists()
+    assert s1.status is cs.Status.INTERRUPTED and ck.exists()
     with np.load(ck, allow_pickle=False) as z:
         assert int(z["iteration"]) == 25
         stage = int(z["stage"])

@@ -26,7 +26,7 @@ from .geometry import signed_distance
 from .environment import Environment, Obstacle, ground, incline, platform, step
 from .contact import contact_forces, ContactData, contact_labels
 from . import simulate
-from .optimize import MotionProblem, MotionSequence, solve, Solution, load_solution, check_gradients
+from .optimize import MotionProblem, MotionSequence, solve, Solution, Status, load_solution, check_gradients
 from .stepcheck import check_time_step
 from . import examples
 from .allocator import tune_allocator

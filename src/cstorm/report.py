@@ -247,7 +247,7 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
     look at initial guesses (``cstorm solve NAME --guess``) or to test output code."""
     import jax
     import jax.numpy as jnp
-    from .optimize.solution import Solution
+    from .optimize.solution import Solution, Status
     from .optimize.solve import _contact_dict
 
     segs = problem_segments(problem)
@@ -275,7 +275,7 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
             cost = float(f)
             viol = max([0.0] + ([float(np.max(np.abs(ce)))] if ce.size else []) +
                        ([float(np.max(np.maximum(0.0, -ci)))] if ci.size else []))
-        sols.append(Solution(success=False, message=message, cost=cost, constraint_violation=viol, iterations=0,
+        sols.append(Solution(success=False, status=Status.NOT_SOLVED, message=message, cost=cost, constraint_violation=viol, iterations=0,
                              x=xk, trajectory=traj, problem=p.name,
                              params={k: np.asarray(v).tolist() for k, v in p.params.items()},
                              info=dict(problem_hash=p.hash())))
@@ -291,7 +291,7 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
         ts.append(s.trajectory["t"][1:] + off)
         off += s.trajectory["t"][-1]
     traj["t"] = np.concatenate(ts)
-    return Solution(success=False, message=message, cost=float(sum(s.cost for s in sols)),
+    return Solution(success=False, status=Status.NOT_SOLVED, message=message, cost=float(sum(s.cost for s in sols)),
                     constraint_violation=float(max(s.constraint_violation for s in sols)), iterations=0,
                     x=np.concatenate([s.x for s in sols]), trajectory=traj, segments=sols, problem=problem.name)
 

@@ -6,8 +6,8 @@ from . import costs, constraints
 from .problem import MotionProblem
 from .sequence import MotionSequence
 from .solve import solve
-from .solution import Solution, load_solution
+from .solution import Solution, Status, load_solution
 from .gradcheck import check_gradients
 
-__all__ = ["MotionProblem", "MotionSequence", "solve", "Solution", "load_solution", "check_gradients", "costs",
+__all__ = ["MotionProblem", "MotionSequence", "solve", "Solution", "Status", "load_solution", "check_gradients", "costs",
            "constraints"]

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import ProblemError
 from .problem import MotionProblem
-from .solution import Solution
+from .solution import Solution, Status
 
 __all__ = ["MotionSequence"]
 
@@ -72,7 +72,7 @@ class MotionSequence:
             s.segments = []
             sols.append(s)
             q0, v0 = s.trajectory["q"][-1], s.trajectory["v"][-1]
-            if "interrupted" in s.message:
+            if s.status is Status.INTERRUPTED:
                 break
         # concatenated trajectory (the first point of later segments is the previous end)
         keys = ("q", "v", "a", "tau")
@@ -92,7 +92,10 @@ class MotionSequence:
         message = "all segments solved" if success else (
             f"segment(s) {bad} failed: " + "; ".join(sols[k].message for k in bad) if bad else
             f"stopped after {len(sols)} of {len(self.segments)} segments")
-        return Solution(success=success, message=message, cost=float(sum(s.cost for s in sols)),
+        interrupted = any(s.status is Status.INTERRUPTED for s in sols)
+        status = Status.SOLVED if success else (Status.INTERRUPTED if interrupted else
+                                                 next(s.status for s in sols if not s.success))
+        return Solution(success=success, status=status, message=message, cost=float(sum(s.cost for s in sols)),
                         constraint_violation=float(max(s.constraint_violation for s in sols)),
                         iterations=int(sum(s.iterations for s in sols)), x=np.concatenate([s.x for s in sols]),
                         trajectory=trajectory, history=[h for s in sols for h in s.history], segments=sols,

@@ -5,6 +5,7 @@ JSON metadata string; no pickle) with an atomic write, and read back by `load_so
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import os
 import tempfile
@@ -14,11 +15,22 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Solution", "load_solution", "atomic_savez"]
+__all__ = ["Solution", "Status", "load_solution", "atomic_savez"]
 
 _TRAJ_KEYS = ("t", "q", "v", "a", "tau")
-_SCALARS = ("problem", "success", "message", "cost", "constraint_violation", "iterations", "wall_time_s",
+_SCALARS = ("problem", "success", "status", "message", "cost", "constraint_violation", "iterations", "wall_time_s",
             "compile_time_s", "n_evaluations")
+
+
+class Status(str, enum.Enum):
+    """Why a solve stopped (`Solution.status`); branch on this, never on the message."""
+
+    SOLVED = "solved"                # the solver converged and the constraints hold
+    SOLVER_FAILED = "solver_failed"  # the solver stopped without converging (iteration limit, line search, ...)
+    INFEASIBLE = "infeasible"        # the solver converged, but the violation exceeds constraint_tol
+    DIVERGED = "diverged"            # the final motion's rollout diverged; the last sound stage end is returned
+    INTERRUPTED = "interrupted"      # KeyboardInterrupt (Ctrl-C or a callback); the best iterate is returned
+    NOT_SOLVED = "not_solved"        # no solve was run (an initial guess written as a motion)
 
 
 @dataclasses.dataclass
@@ -27,7 +39,8 @@ class Solution:
 
     Attributes:
       success: bool, the solver converged and the constraints hold (violation <= tol).
-      message: why the solver stopped, in words.
+      status: `Status`, why the solve stopped (``Status.SOLVED`` exactly when
+        ``success``). message: the same in words, with the solver's own message.
       cost: objective at ``x``. constraint_violation: ``max(|c_eq|, max(0, -c_in))`` over
         the enforced constraints at ``x``. iterations: solver iterations (all stages).
       x: (n_vars,) decision vector (free spline control points; see `MotionProblem`).
@@ -59,9 +72,15 @@ class Solution:
     compile_time_s: float = 0.0
     n_evaluations: int = 0
     info: dict = dataclasses.field(default_factory=dict)
+    status: Status = None
+
+    def __post_init__(self):
+        if self.status is None:
+            self.status = Status.SOLVED if self.success else Status.SOLVER_FAILED
+        self.status = Status(self.status)
 
     def __repr__(self):
-        return (f"Solution(problem={self.problem!r}, success={self.success}, cost={self.cost:.6g}, "
+        return (f"Solution(problem={self.problem!r}, status={self.status.value}, cost={self.cost:.6g}, "
                 f"constraint_violation={self.constraint_violation:.3g}, iterations={self.iterations}, "
                 f"message={self.message!r})")
 
@@ -139,6 +158,8 @@ def _py(x):
         return x.tolist()
     if isinstance(x, np.generic):
         return x.item()
+    if isinstance(x, enum.Enum):
+        return x.value
     if isinstance(x, float) and not np.isfinite(x):
         return float(x)
     return x
@@ -171,7 +192,8 @@ def _build(meta, arrays, prefix):
                     problem=meta.get("problem", ""), params=meta.get("params", {}),
                     wall_time_s=float(meta.get("wall_time_s", 0.0)),
                     compile_time_s=float(meta.get("compile_time_s", 0.0)),
-                    n_evaluations=int(meta.get("n_evaluations", 0)), info=meta.get("info", {}))
+                    n_evaluations=int(meta.get("n_evaluations", 0)), info=meta.get("info", {}),
+                    status=meta.get("status"))
 
 
 def load_solution(path) -> Solution:

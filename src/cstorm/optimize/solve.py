@@ -38,7 +38,7 @@ import jax.numpy as jnp
 from ..errors import DivergenceError, InputError, ProblemError
 from ..simulate import check_divergence
 from .problem import MotionProblem, require_x64
-from .solution import Solution, atomic_savez
+from .solution import Solution, Status, atomic_savez
 
 __all__ = ["solve", "SolveOptions"]
 
@@ -398,7 +398,17 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                 f, *_ = ev.at(x)
                 viol = ev.violation(x)
                 traj = jax.tree_util.tree_map(np.asarray, problem.compiled("trajectory")(jnp.asarray(x), data_final))
-    success = (not interrupted) and solver_ok and viol <= constraint_tol and fell_back is None
+    if interrupted:
+        status = Status.INTERRUPTED
+    elif fell_back is not None:
+        status = Status.DIVERGED
+    elif not solver_ok:
+        status = Status.SOLVER_FAILED
+    elif viol > constraint_tol:
+        status = Status.INFEASIBLE
+    else:
+        status = Status.SOLVED
+    success = status is Status.SOLVED
     if fell_back is not None:
         message = (f"{message}; {fell_back}; returning the end of stage {last_sound[1]} instead, the last whose "
                    "rollout did not diverge")
@@ -413,7 +423,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     info = dict(method=method, max_iter=max_iter, tol=tol, constraint_tol=constraint_tol, stages=stages_info,
                 problem_hash=problem.hash(), problem_description=problem.describe(), cstorm_version=_ver,
                 options=_jsonable(options or {}))
-    sol = Solution(success=bool(success), message=message, cost=float(f), constraint_violation=float(viol),
+    sol = Solution(success=bool(success), status=status, message=message, cost=float(f), constraint_violation=float(viol),
                    iterations=tracker.iteration, x=np.asarray(x), trajectory=trajectory, history=tracker.history,
                    problem=problem.name, params={k: np.asarray(v).tolist() for k, v in params_now.items()},
                    wall_time_s=time.perf_counter() - t0, compile_time_s=compile_s,

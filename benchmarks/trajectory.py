@@ -21,7 +21,7 @@ What is timed (wall clock, best of several runs; compile time reported separatel
   hybrid algorithm gives their torques), the base is passive: cstorm's method. The
   rollout is `cstorm.simulate.rollout` (RK4) under reverse-mode autodiff, with
   ``derivatives="parallel"`` (the time-parallel tangent rule of
-  `cstorm.rollout_tangents`; ``--derivatives analytic`` for JAX's derivative of the
+  `cstorm.simulate.tangents`; ``--derivatives analytic`` for JAX's derivative of the
   checkpointed scan, the rule of the 2026-12-03 table). The splines enter only through the basis matrices (``paths =
   B @ ctrl``), so one compiled rollout gradient w.r.t. the paths serves every ``P``; the
   two matmuls of the chain rule are inside the timed call.

@@ -100,7 +100,7 @@ import io
 import numpy as np
 
 import cstorm as cs
-from cstorm import cli
+from cstorm.cli import commands as cli
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml")
 # fast settings: swing up to 3/4 pi instead of pi (two continuation stages, ~50 iterations)

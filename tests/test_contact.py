@@ -1,5 +1,5 @@
 """Contact points, environments and f_ext assembly (`cstorm.contact.contact_forces`,
-`cstorm.environment`): hand computations, J^T f consistency, finite-difference gradients
+`cstorm.contact.environment`): hand computations, J^T f consistency, finite-difference gradients
 and physics sanity (bounce, sliding deceleration mu g, incline slide and creep) with a
 small semi-implicit Euler integrator. Compiles once per model (functions take the model,
 environment and parameters as arguments and are reused across cases)."""
@@ -15,7 +15,7 @@ from scipy.optimize import brentq
 
 import cstorm as cs
 from cstorm.contact import ContactParams, contact_forces, contact_labels, normal_force
-from cstorm.environment import Environment, Obstacle, ground, incline, platform, sphere, step
+from cstorm.contact import Environment, Obstacle, ground, incline, platform, sphere, step
 from cstorm.errors import InputError
 
 G = 9.81

@@ -1,4 +1,4 @@
-"""The analytic derivative rule of the plane contact points (`cstorm.contact_jacobians`)
+"""The analytic derivative rule of the plane contact points (`cstorm.contact.plane`)
 against plain JAX differentiation of the same code (``contact_forces(...,
 jacobians="autodiff")``) and central finite differences: every ContactData field,
 forward and reverse mode, tangents of q (on the tangent space: free and ball joints),
@@ -16,7 +16,7 @@ import pytest
 
 import cstorm as cs
 from cstorm.contact import ContactParams, contact_forces
-from cstorm.environment import Environment, ground, incline, platform, sphere
+from cstorm.contact import Environment, ground, incline, platform, sphere
 from cstorm import _pytree
 
 

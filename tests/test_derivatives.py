@@ -160,9 +160,9 @@ def test_hybrid_layer_product_forms_agree(monkeypatch):
     assert model.nv <= D._CONCAT_MAX_NV
     q, v, aa, tp, active, f_ext = _inputs(model, 1, 0)
     assert any(active) and not all(active)
-    ref = jit(D._hybrid_derivatives, static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
+    ref = jit(D.hybrid_derivatives_unchecked, static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
     monkeypatch.setattr(D, "_CONCAT_MAX_NV", 0)  # read at trace time: a new function, a new trace
-    got = jit(lambda *args: D._hybrid_derivatives(*args), static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
+    got = jit(lambda *args: D.hybrid_derivatives_unchecked(*args), static_argnums=(5,))(model, q, v, aa, tp, active, f_ext)
     _compare(got, ref, tol=1e-13)
 
 
@@ -187,7 +187,7 @@ def test_analytic_rnea_and_aba_match_autodiff(topology, with_fext):
 @SLOW
 def test_autodiff_rnea_and_aba_references():
     """The public autodiff references rnea_derivatives_ad / aba_derivatives_ad (jacfwd
-    through `_rnea`, and through `_hybrid` with all DoFs passive)."""
+    through `rnea_unchecked`, and through `hybrid_unchecked` with all DoFs passive)."""
     model = _tree(1, 0)
     rng = np.random.default_rng(5)
     q, v, a = random_state(model, rng)

@@ -1,4 +1,4 @@
-"""TOML problem files (cstorm.problemfile): the shipped example builds the same problem
+"""TOML problem files (cstorm.io.problemfile): the shipped example builds the same problem
 as the acrobot example (dynamics, initial guess, plan), an environment/contact file
 builds per-pair contact parameters, overrides, and bad input: every error names the
 file, the table/key and what is wrong. Nothing is compiled (problem construction only
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import cstorm as cs
-from cstorm.problemfile import ProblemFileError, apply_overrides, load_problem, load_problem_text
+from cstorm.io.problemfile import ProblemFileError, apply_overrides, load_problem, load_problem_text
 
 EXAMPLE = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml"))
 TEXT = open(EXAMPLE).read()

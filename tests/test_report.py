@@ -20,6 +20,7 @@ import pytest
 
 import cstorm as cs
 from cstorm import report
+from cstorm.analysis.fidelity import deviation_flags
 from cstorm.errors import InputError, ProblemError
 from cstorm.optimize.solution import Solution
 from cstorm.viz.motion import Motion
@@ -295,12 +296,12 @@ def test_fidelity_flags_velocities_too():
     position off by more than 1 cm (a landing "at rest" that only the planning step
     produced; see `cstorm.check_time_step`); each bound on its own."""
     ok = dict(position_m=1e-3, angle_deg=0.1, velocity_m_s=5e-3, angular_velocity_deg_s=0.5)
-    assert report._flags(ok, 0.01, 2.0) == []
+    assert deviation_flags(ok, 0.01, 2.0) == []
     for key, val, word in (("velocity_m_s", 0.024, "velocity off by 0.024 m/s"),
                            ("angular_velocity_deg_s", 14.0, "angular velocity off by 14 deg/s")):
-        flags = report._flags({**ok, key: val}, 0.01, 2.0)
+        flags = deviation_flags({**ok, key: val}, 0.01, 2.0)
         assert len(flags) == 1 and word in flags[0], flags
-    assert report._flags({**ok, "velocity_m_s": None}, 0.01, 2.0) == []  # a robot without such DoFs
+    assert deviation_flags({**ok, "velocity_m_s": None}, 0.01, 2.0) == []  # a robot without such DoFs
 
 
 def test_torque_check_reads_every_step():

@@ -1,4 +1,4 @@
-"""The time-parallel tangent rule of rollouts (`cstorm.rollout_tangents`, the rollout's
+"""The time-parallel tangent rule of rollouts (`cstorm.simulate.tangents`, the rollout's
 ``derivatives="parallel"``) against plain autodiff through the scan
 (``derivatives="autodiff"``), which we did not specialize: forward and reverse mode, a
 free body landing on the ground through the smooth contact model (RKMK4 and
@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 import cstorm as cs
 from cstorm.contact import contact_forces
-from cstorm import rollout_tangents
+from cstorm.simulate import tangents as rollout_tangents
 from cstorm.simulate import RolloutLayout, rollout
 
 N = 24

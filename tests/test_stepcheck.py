@@ -1,5 +1,5 @@
 """`cs.check_time_step`: the time step against the integrator's stability limit of the
-linearized passive dynamics (src/cstorm/stepcheck.py).
+linearized passive dynamics (src/cstorm/analysis/timestep.py).
 
 (a) the tumbler standing on its foot: RK4 at 4 ms is past the limit of the friction's
     viscous mode (found by simulation: 3 ms agrees with 0.25 ms, 4 ms does not), 2 ms is
@@ -19,7 +19,7 @@ import pytest
 
 import cstorm as cs
 from cstorm import cli
-from cstorm.stepcheck import RK4_REAL_LIMIT, rk4_factor
+from cstorm.analysis.timestep import RK4_REAL_LIMIT, rk4_factor
 
 T = importlib.import_module("cstorm.examples.tumbler")
 

@@ -23,10 +23,10 @@ from .trajectory import QuinticBSpline
 from .contact import ContactParams
 from . import robots
 from .geometry import signed_distance
-from .environment import Environment, Obstacle, ground, incline, platform, step
+from .contact import Environment, Obstacle, ground, incline, platform, step
 from .contact import contact_forces, ContactData, contact_labels
 from . import simulate
 from .optimize import MotionProblem, MotionSequence, solve, Solution, Status, load_solution, check_gradients
-from .stepcheck import check_time_step
+from .analysis.timestep import check_time_step
 from . import examples
 from .allocator import tune_allocator

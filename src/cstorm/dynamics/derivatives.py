@@ -31,7 +31,7 @@ compiles about 5x faster than a per-body unrolled form and runs ~10 % faster.)
 3. `_rnea_partials`: dtau/dq, dtau/dv and M as masked dense products of stacked world
    columns (formulas in its docstring). Pinocchio's external forces are body-fixed; ours
    are fixed in the world, which adds ``J x* Fext`` terms to dtau/dq.
-4. Hybrid layer (`_hybrid_derivatives`): ``a_p`` from ``M_pp a_p = tau_p - rnea_p(q, v,
+4. Hybrid layer (`hybrid_derivatives_unchecked`): ``a_p`` from ``M_pp a_p = tau_p - rnea_p(q, v,
    [a_a; 0])``, then differentiate ``rnea(q, v, [a_a; a_p], f) = [tau_a; tau_p]``:
    ``d a_p = -M_pp^-1 (d rnea_p)``, ``d tau_a = d rnea_a + M_ap d a_p``. ABA is the
    all-passive case (``dA/dx = -M^-1 dRNEA/dx``, ``dA/dtau = M^-1``), RNEA the all-active one.
@@ -60,60 +60,12 @@ from .. import spatial as sp
 from . import _checks
 from .kinematics import joint_placements, world_placements
 from .rnea import gravity_acceleration
-
-
-class HybridDerivatives(NamedTuple):
-    """Value and Jacobians of the hybrid dynamics ``y = g(q, v, a_active, tau_passive, f_ext)``.
-
-    y (nv,): tau_active in the active rows, a_passive in the passive rows (v order).
-    dq (nv, nv): w.r.t. a tangent perturbation ``q (+) dq``. dv (nv, nv).
-    da_active (nv, n_active). dtau_passive (nv, n_passive).
-    df_ext (nv, n_bodies, 6): w.r.t. the world wrenches ``[torque about world origin; force]``.
-    """
-
-    y: jnp.ndarray
-    dq: jnp.ndarray
-    dv: jnp.ndarray
-    da_active: jnp.ndarray
-    dtau_passive: jnp.ndarray
-    df_ext: jnp.ndarray
-
-
-class RNEADerivatives(NamedTuple):
-    """``tau = rnea(q, v, a, f_ext)`` (nv,) and its Jacobians: dq (nv, nv) w.r.t. ``q (+) dq``,
-    dv (nv, nv), da (nv, nv) (= the mass matrix M, armature included), df_ext (nv, n_bodies, 6)."""
-
-    tau: jnp.ndarray
-    dq: jnp.ndarray
-    dv: jnp.ndarray
-    da: jnp.ndarray
-    df_ext: jnp.ndarray
-
-
-class ABADerivatives(NamedTuple):
-    """``a = aba(q, v, tau, f_ext)`` (nv,) and its Jacobians: dq (nv, nv) w.r.t. ``q (+) dq``,
-    dv (nv, nv), dtau (nv, nv) (= M^-1), df_ext (nv, n_bodies, 6)."""
-
-    a: jnp.ndarray
-    dq: jnp.ndarray
-    dv: jnp.ndarray
-    dtau: jnp.ndarray
-    df_ext: jnp.ndarray
-
-
-def _validate(model, q, v, a_active, tau_passive, active, f_ext, fn):
-    active = _checks.active(model, active, fn)
-    q = _checks.config(model, q, fn)
-    v = _checks.vec(model, v, model.nv, "v", fn)
-    na = sum(active)
-    a_active = _checks.vec(model, a_active, na, "a_active", fn)
-    tau_passive = _checks.vec(model, tau_passive, model.nv - na, "tau_passive", fn)
-    f_ext = _checks.fext(model, f_ext, fn)
-    return q, v, a_active, tau_passive, active, f_ext
+from .derivative_types import ABADerivatives, HybridDerivatives, RNEADerivatives, validate_inputs
+from .derivatives_ad import hybrid_derivatives_ad
 
 
 
-def _tree_masks(model):
+def tree_masks(model):
     """Static structure. anc (nb, nb): anc[j, k] when body j is k or an ancestor of k.
     Over DoFs (nv, nv), by the DoFs' joints: up (row joint is the column joint or an
     ancestor of it), same (same joint), strict_up, strict_down = strict_up^T."""
@@ -199,7 +151,7 @@ class _Tree(NamedTuple):
     """Static structure (numpy): dj (nv,) the body of each DoF, anc (nb, nb)
     float with anc[j, k] = 1 when body j is k or an ancestor of k, member (nb, nv) with
     member[b, k] = 1 when DoF k is body b's, up/same/strict_up/strict_down (nv, nv) over
-    DoFs as in `_tree_masks`."""
+    DoFs as in `tree_masks`."""
 
     dj: np.ndarray
     anc: np.ndarray
@@ -211,7 +163,7 @@ class _Tree(NamedTuple):
 
 
 def _tree(model):
-    anc, dj, up, same, sup, sdown = _tree_masks(model)
+    anc, dj, up, same, sup, sdown = tree_masks(model)
     member = (np.arange(model.n_bodies)[:, None] == dj[None, :]).astype(float)
     return _Tree(dj, anc.astype(float), member, up, same, sup, sdown)
 
@@ -432,7 +384,7 @@ def _take(X, idx, axis=0):
 _CONCAT_MAX_NV = 24
 
 
-def _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext):
+def hybrid_derivatives_unchecked(model, q, v, a_active, tau_passive, active, f_ext):
     """Differentiate the identity ``rnea(q, v, [a_a; a_p], f_ext) = [tau_a; tau_p]``.
 
     With R = rnea and a residual perturbation dR (any of dR/dq, dR/dv, dR/df_ext, and
@@ -495,7 +447,7 @@ def _df_ext(model, act, Sp, Jc):
     writes ``-J_j^T`` into row j (a static mask). Each body's passive sum is written out
     directly rather than accumulated down the tree: under `vmap` that fuses into one loop
     over the output (on TALOS about 30 % faster than the accumulation)."""
-    anc, dj, *_ = _tree_masks(model)
+    anc, dj, *_ = tree_masks(model)
     nv, nb = model.nv, model.n_bodies
     dtype = Jc.dtype
     ip = np.nonzero(~act)[0]
@@ -530,12 +482,11 @@ def hybrid_dynamics_derivatives(model, q, v, a_active, tau_passive, active, f_ex
         da_active (nv, n_active); dtau_passive (nv, n_passive); df_ext (nv, n_bodies, 6).
     """
     fn = "hybrid_dynamics_derivatives"
-    q, v, a_active, tau_passive, active, f_ext = _validate(model, q, v, a_active, tau_passive, active, f_ext, fn)
+    q, v, a_active, tau_passive, active, f_ext = validate_inputs(model, q, v, a_active, tau_passive, active, f_ext, fn)
     if method == "autodiff":
-        from .derivatives_ad import _hybrid_derivatives_ad
-        return _hybrid_derivatives_ad(model, q, v, a_active, tau_passive, active, f_ext)
+        return hybrid_derivatives_ad(model, q, v, a_active, tau_passive, active, f_ext)
     _check_method(method, fn)
-    return _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext)
+    return hybrid_derivatives_unchecked(model, q, v, a_active, tau_passive, active, f_ext)
 
 
 def rnea_derivatives(model, q, v, a, f_ext=None, method="analytic"):
@@ -555,7 +506,7 @@ def rnea_derivatives(model, q, v, a, f_ext=None, method="analytic"):
         from .derivatives_ad import rnea_derivatives_ad
         return rnea_derivatives_ad(model, q, v, a, f_ext)
     _check_method(method, fn)
-    r = _hybrid_derivatives(model, q, v, a, jnp.zeros(0, dtype=v.dtype), (True,) * model.nv, f_ext)
+    r = hybrid_derivatives_unchecked(model, q, v, a, jnp.zeros(0, dtype=v.dtype), (True,) * model.nv, f_ext)
     return RNEADerivatives(r.y, r.dq, r.dv, r.da_active, r.df_ext)
 
 
@@ -577,7 +528,7 @@ def aba_derivatives(model, q, v, tau, f_ext=None, method="analytic"):
         from .derivatives_ad import aba_derivatives_ad
         return aba_derivatives_ad(model, q, v, tau, f_ext)
     _check_method(method, fn)
-    r = _hybrid_derivatives(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)
+    r = hybrid_derivatives_unchecked(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)
     return ABADerivatives(r.y, r.dq, r.dv, r.dtau_passive, r.df_ext)
 
 

@@ -36,8 +36,9 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from .. import spatial as sp
-from .derivatives import _hybrid_derivatives, _validate
-from .hybrid import _hybrid
+from .derivative_types import validate_inputs
+from .derivatives import hybrid_derivatives_unchecked
+from .hybrid import hybrid_unchecked
 from ..model.joints import Ball, Free
 
 
@@ -50,21 +51,21 @@ def hybrid_dynamics_fast(model, q, v, a_active, tau_passive, active, f_ext=None)
             ``[torque about world origin; force]``.
     Returns: (tau_active (n_active,), a_passive (n_passive,)).
     """
-    q, v, a_active, tau_passive, active, f_ext = _validate(
+    q, v, a_active, tau_passive, active, f_ext = validate_inputs(
         model, q, v, a_active, tau_passive, active, f_ext, "hybrid_dynamics_fast")
-    return _hybrid_fast(model, q, v, a_active, tau_passive, active, f_ext)
+    return hybrid_fast(model, q, v, a_active, tau_passive, active, f_ext)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(5,))
-def _hybrid_fast(model, q, v, a_active, tau_passive, active, f_ext):
-    return _hybrid(model, q, v, a_active, tau_passive, active, f_ext)
+def hybrid_fast(model, q, v, a_active, tau_passive, active, f_ext):
+    return hybrid_unchecked(model, q, v, a_active, tau_passive, active, f_ext)
 
 
-def _is_zero(t):
+def is_symbolic_zero(t):
     return t is None or isinstance(t, SymbolicZero)
 
 
-def _instantiate(t):
+def instantiate_zero(t):
     if isinstance(t, SymbolicZero):
         if jnp.issubdtype(t.aval.dtype, jnp.inexact):
             return jnp.zeros(t.aval.shape, t.aval.dtype)
@@ -72,9 +73,19 @@ def _instantiate(t):
     return t
 
 
-def _any_nonzero(tree):
+def float0_zeros(x):
+    """The zero tangent of an integer or boolean value ``x`` (dtype float0)."""
+    return np.zeros(np.shape(x), dtype=jax.dtypes.float0)
+
+
+def is_inexact(x):
+    """Whether ``x`` has a floating (differentiable) dtype."""
+    return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
+
+
+def any_nonzero(tree):
     """Whether any tangent leaf of ``tree`` is not a symbolic zero."""
-    return not all(_is_zero(t) for t in jax.tree_util.tree_leaves(tree, is_leaf=_is_zero))
+    return not all(is_symbolic_zero(t) for t in jax.tree_util.tree_leaves(tree, is_leaf=is_symbolic_zero))
 
 
 def ambient_to_tangent(model, q, dq):
@@ -98,28 +109,28 @@ def _jvp(active, primals, tangents):
     dmodel, dq, dv, da, dt, df = tangents
     act = np.array(active, dtype=bool)
     ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
-    r = _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext)
+    r = hybrid_derivatives_unchecked(model, q, v, a_active, tau_passive, active, f_ext)
     dy = jnp.zeros_like(r.y)
-    if not _is_zero(dq):
+    if not is_symbolic_zero(dq):
         dy = dy + r.dq @ ambient_to_tangent(model, q, dq)
-    if not _is_zero(dv):
+    if not is_symbolic_zero(dv):
         dy = dy + r.dv @ dv
-    if not _is_zero(da) and da.shape[0]:
+    if not is_symbolic_zero(da) and da.shape[0]:
         dy = dy + r.da_active @ da
-    if not _is_zero(dt) and dt.shape[0]:
+    if not is_symbolic_zero(dt) and dt.shape[0]:
         dy = dy + r.dtau_passive @ dt
-    if f_ext is not None and not _is_zero(df):
+    if f_ext is not None and not is_symbolic_zero(df):
         dy = dy + jnp.einsum("ibk,bk->i", r.df_ext, df)
-    if _any_nonzero(dmodel):
+    if any_nonzero(dmodel):
         # design derivatives: forward mode through the plain algorithm, model leaves only
-        dm = jax.tree_util.tree_map(_instantiate, dmodel, is_leaf=_is_zero)
+        dm = jax.tree_util.tree_map(instantiate_zero, dmodel, is_leaf=is_symbolic_zero)
 
         def y_of_model(m):
-            ta, ap = _hybrid(m, q, v, a_active, tau_passive, active, f_ext)
+            ta, ap = hybrid_unchecked(m, q, v, a_active, tau_passive, active, f_ext)
             return jnp.zeros(model.nv, dtype=r.y.dtype).at[ia].set(ta).at[ip].set(ap)
 
         dy = dy + jax.jvp(y_of_model, (model,), (dm,))[1]
     return (r.y[ia], r.y[ip]), (dy[ia], dy[ip])
 
 
-_hybrid_fast.defjvp(_jvp, symbolic_zeros=True)
+hybrid_fast.defjvp(_jvp, symbolic_zeros=True)

@@ -53,7 +53,7 @@ def hybrid_dynamics(model, q, v, a_active, tau_passive, active, f_ext=None):
     a_active = _checks.vec(model, a_active, na, "a_active", fn)
     tau_passive = _checks.vec(model, tau_passive, model.nv - na, "tau_passive", fn)
     f_ext = _checks.fext(model, f_ext, fn)
-    return _hybrid(model, q, v, a_active, tau_passive, active, f_ext)
+    return hybrid_unchecked(model, q, v, a_active, tau_passive, active, f_ext)
 
 
 def aba(model, q, v, tau, f_ext=None):
@@ -63,7 +63,7 @@ def aba(model, q, v, tau, f_ext=None):
     v = _checks.vec(model, v, model.nv, "v", "aba")
     tau = _checks.vec(model, tau, model.nv, "tau", "aba")
     f_ext = _checks.fext(model, f_ext, "aba")
-    return _hybrid(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)[1]
+    return hybrid_unchecked(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)[1]
 
 
 @jax.custom_jvp
@@ -126,7 +126,9 @@ def _scatter(active, a_active, tau_passive):
     return qdd, tau, ia, ip
 
 
-def _hybrid(model, q, v, a_active, tau_passive, active, f_ext):
+def hybrid_unchecked(model, q, v, a_active, tau_passive, active, f_ext):
+    """`hybrid_dynamics` without input checks (``active`` a static tuple, arrays of the right
+    shapes): for callers inside compiled code that checked their inputs once."""
     nb = model.n_bodies
     qdd_known, tau_known, ia, ip = _scatter(active, a_active, tau_passive)
     Rs, ps, Ss = joint_placements(model, q)

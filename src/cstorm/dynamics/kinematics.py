@@ -69,3 +69,14 @@ def frame_pose(model, q, name):
         q = _checks.config(model, q, "frame_pose")
         return jnp.asarray(T, dtype=q.dtype)
     return forward_kinematics(model, q)[b] @ T
+
+
+def world_twists(model, Rs, ps, Ss, oR, v):
+    """World-aligned angular velocity and body-origin velocity, each (n_bodies, 3)."""
+    vs = []
+    for i, par in enumerate(model.parents):
+        vj = Ss[i] @ v[model.v_starts[i]: model.v_starts[i] + model.joints[i].nv]
+        vs.append(vj if par < 0 else sp.inv_act_motion(Rs[i], ps[i], vs[par]) + vj)
+    tw = jnp.stack(vs)
+    R = jnp.stack(oR)
+    return jnp.einsum("bij,bj->bi", R, tw[:, :3]), jnp.einsum("bij,bj->bi", R, tw[:, 3:])

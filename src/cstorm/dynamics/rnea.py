@@ -43,10 +43,11 @@ def rnea(model, q, v, a, f_ext=None):
     v = _checks.vec(model, v, model.nv, "v", "rnea")
     a = _checks.vec(model, a, model.nv, "a", "rnea")
     f_ext = _checks.fext(model, f_ext, "rnea")
-    return _rnea(model, q, v, a, f_ext)
+    return rnea_unchecked(model, q, v, a, f_ext)
 
 
-def _rnea(model, q, v, a, f_ext):
+def rnea_unchecked(model, q, v, a, f_ext):
+    """`rnea` without input checks (arrays of the right shapes; ``f_ext`` may be None)."""
     Rs, ps, Ss = joint_placements(model, q)
     fl = external_wrenches_local(model, *world_placements(model, Rs, ps), f_ext) if f_ext is not None else [None] * model.n_bodies
     I = body_spatial_inertias(model)
@@ -78,11 +79,11 @@ def bias_forces(model, q, v, f_ext=None):
     q = _checks.config(model, q, "bias_forces")
     v = _checks.vec(model, v, model.nv, "v", "bias_forces")
     f_ext = _checks.fext(model, f_ext, "bias_forces")
-    return _rnea(model, q, v, jnp.zeros(model.nv, dtype=v.dtype), f_ext)
+    return rnea_unchecked(model, q, v, jnp.zeros(model.nv, dtype=v.dtype), f_ext)
 
 
 def gravity_forces(model, q):
     """Generalized gravity ``g(q)`` (nv,)."""
     q = _checks.config(model, q, "gravity_forces")
     z = jnp.zeros(model.nv, dtype=q.dtype)
-    return _rnea(model, q, z, z, None)
+    return rnea_unchecked(model, q, z, z, None)

@@ -15,6 +15,7 @@ from jax.scipy.special import logsumexp
 from ..errors import ProblemError
 from ..optimize.constraints import Constraint, TorqueLimits
 from ..optimize.costs import Cost, resolve
+from ..analysis.torque import torque_check
 from ._planar import criterion, longest_run, trajectory_contact_d
 
 __all__ = ["FlightClearance", "AtRest", "ForwardDistance", "PitchBound", "LandingPenalty", "ScaledTorqueLimits", "soft_clearance",
@@ -230,7 +231,7 @@ def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-
     with contact forces, zero active accelerations). Returns ``(q, |a_p|_inf)``, q (nq,).
     Compiles a small function (a few seconds)."""
     from ..contact import contact_forces
-    from ..dynamics.hybrid import _hybrid
+    from ..dynamics.hybrid import hybrid_unchecked
     from ..dynamics.passive import passive_forces
     from ..simulate import RolloutLayout
 
@@ -244,7 +245,7 @@ def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-
         q = q_guess.at[qp_idx].set(qp)
         f = contact_forces(model, env, contact, q, v).f_ext
         pf = passive_forces(model, q, v)
-        return _hybrid(model, q, v, jnp.zeros(lay.n_active), pf[vp_idx], lay.active, f)[1]
+        return hybrid_unchecked(model, q, v, jnp.zeros(lay.n_active), pf[vp_idx], lay.active, f)[1]
 
     jac = jax.jit(jax.jacfwd(acc))
     qp = q_guess[qp_idx]
@@ -292,7 +293,6 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
       largest deviations from the final pose) and ``still_after_hold`` (the base speed at
       the end of the hold).
     """
-    from ..report import torque_check
 
     tr = solution.trajectory
     tq = torque_check(problem, solution)
@@ -417,7 +417,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
       keyword arguments of `hop_criteria` (``acc_tol``, ``hold``, ...); ``final_tol``:
       the last stage's SLSQP tolerance.
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
-    from ..environment import Environment, ground
+    from ..contact import Environment, ground
     from ..optimize import costs, constraints
     from ..optimize.problem import MotionProblem
 

@@ -239,7 +239,7 @@ def jumper(t_final: float = 1.0, n_ctrl: int = 12, dt: float = 0.002, flight=(0.
     """
     import jax.numpy as jnp
 
-    from ..environment import Environment, ground
+    from ..contact import Environment, ground
     from ..optimize import constraints as C, costs
     from ..optimize.problem import MotionProblem
 

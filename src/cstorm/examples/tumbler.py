@@ -88,12 +88,13 @@ import jax.numpy as jnp
 
 from .. import robots
 from ..contact import ContactParams
-from ..environment import Environment, ground
+from ..contact import Environment, ground
 from ..optimize import costs as C
 from ..optimize import constraints as K
 from ..optimize.problem import MotionProblem
 from ._hopping import ScaledTorqueLimits
 from ..optimize.sequence import MotionSequence
+from ..analysis.criteria import evaluate_criteria
 
 __all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
 
@@ -463,7 +464,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     # to rounding (a 1e-14 change of the gradients has sent the handstand's rest ramp
     # into a stall at violation 1.55)
     p.solve_options["refine"] = 2
-    # the time-parallel tangent rule (`cstorm.rollout_tangents`): one values+Jacobian
+    # the time-parallel tangent rule (`cstorm.simulate.tangents`): one values+Jacobian
     # evaluation of the handstand 330 ms against 643 ms by differentiating the scan, of
     # the roll 72 against 231 ms, of standing and start ~145 against 289 ms (2 cores);
     # single shooting only (the multiple-shooting guess="bridge" was not
@@ -490,7 +491,6 @@ class _RestCriteria:
         self.spec, self.problem = spec, problem
 
     def __call__(self, sol):
-        from ..report import evaluate_criteria
         from ._planar import criterion, hold_test
 
         out = evaluate_criteria(self.spec, self.problem.model, sol)

@@ -208,7 +208,7 @@ class SwingClearance(Constraint):
 
     def check(self, problem):
         from ..contact import contact_labels
-        from ..environment import Environment, ground
+        from ..contact import Environment, ground
 
         env = problem.env if problem.env is not None else Environment([ground()])
         labels = contact_labels(problem.model, env)
@@ -347,7 +347,7 @@ def walker(speed: float = 0.8, period: float = 1.2, n_ctrl: int = 9, dt: float =
 
     Attributes added: ``problem.success_criteria(solution) -> dict`` (`walker_criteria`).
     """
-    from ..environment import Environment, ground
+    from ..contact import Environment, ground
     from ..optimize import costs, constraints
     from ..optimize.problem import MotionProblem
 

@@ -123,3 +123,13 @@ def _homog(R, p):
     T[:3, :3] = R
     T[:3, 3] = p
     return T
+
+
+def dof_names(model, kind):
+    """Names of the DoFs of ``model``'s joints in q order (``kind="q"``) or v order (``"v"``):
+    the joint's name for a 1-DoF joint, ``<joint>_<i>`` for the components of others."""
+    out = []
+    for j, n in zip(model.joints, model.joint_names):
+        k = j.nq if kind == "q" else j.nv
+        out += [n] if k == 1 else [f"{n}_{i}" for i in range(k)]
+    return out

@@ -50,11 +50,11 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from ..dynamics.configuration import difference as q_difference, integrate as q_integrate
-from ..dynamics.derivatives_fast import _hybrid_fast
-from ..dynamics.hybrid import _hybrid
+from ..dynamics.derivatives_fast import hybrid_fast
+from ..dynamics.hybrid import hybrid_unchecked
 from ..dynamics.passive import passive_forces
 from ..errors import ProblemError
-from ..simulate import RolloutLayout, _dexpinv, _passive_exp
+from ..simulate import RolloutLayout, contact_hybrid, dexpinv, passive_exp
 from . import costs as _costs
 from .ddp import OCP
 from .problem import EvalContext
@@ -127,13 +127,11 @@ def _dynamics(problem, layout_all, iva):
         gen = pf.at[iva].add(u) if len(iva) else pf
         if autodiff:  # the reference: JAX differentiates through the recursive algorithm
             f_ext, cd = (None, None) if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)
-            _, a = _hybrid(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, f_ext)
+            _, a = hybrid_unchecked(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, f_ext)
         elif cfn is None:
-            _, a = _hybrid_fast(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, None)
+            _, a = hybrid_fast(model, q, v, jnp.zeros(0, q.dtype), gen, all_passive, None)
             cd = None
         else:
-            from ..rollout_tangents import contact_hybrid
-
             fn = lambda q_, v_: cfn(model, data.get("env"), data.get("contact"), q_, v_)
             _, a, _, cd = contact_hybrid(model, fn, q, v, jnp.zeros(0, q.dtype), gen, all_passive)
         tau = pf.at[iva].set(u) if len(iva) else pf
@@ -158,7 +156,7 @@ def _stepper(problem, dyn, layout_all, ravel):
             q, v = x[:nq], x[nq:]
             a, tau, cd = dyn(q, v, u, data)
             vn = v + h * a
-            qn = _passive_exp(model0, layout_all, q, h * vn)
+            qn = passive_exp(model0, layout_all, q, h * vn)
             return jnp.concatenate([qn, vn]), ravel(q, v, a, tau, cd)
         return step, point
 
@@ -176,10 +174,10 @@ def _stepper(problem, dyn, layout_all, ravel):
             Kp, Wp, sK, sW, rec = sc
             c, b, i0 = z
             th = c * h * Kp
-            qi = _passive_exp(model0, layout_all, q, th)
+            qi = passive_exp(model0, layout_all, q, th)
             vi = v + c * h * Wp
             a, tau, cd = dyn(qi, vi, u, data)
-            Ki = _dexpinv(model0, layout_all, th, vi)
+            Ki = dexpinv(model0, layout_all, th, vi)
             y = ravel(qi, vi, a, tau, cd)
             rec = jnp.where(i0, y, rec)
             return (Ki, a, sK + b * Ki, sW + b * a, rec), None
@@ -187,7 +185,7 @@ def _stepper(problem, dyn, layout_all, ravel):
         z0 = jnp.zeros_like(v)
         rec0 = jnp.zeros(y_shape.shape, dtype)
         (_, _, sK, sW, rec), _ = jax.lax.scan(stage, (z0, z0, z0, z0, rec0), (cs, bs, first))
-        qn = _passive_exp(model0, layout_all, q, h * sK)
+        qn = passive_exp(model0, layout_all, q, h * sK)
         vn = v + h * sW
         return jnp.concatenate([qn, vn]), rec
 
@@ -500,7 +498,7 @@ def _guess_torques(p, Q, V, AA, data):
         model = data["model"]
         pf = passive_forces(model, q, v)
         f_ext = None if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)[0]
-        tau_a, _ = _hybrid_fast(model, q, v, aa, pf[ivp], lay.active, f_ext)
+        tau_a, _ = hybrid_fast(model, q, v, aa, pf[ivp], lay.active, f_ext)
         return tau_a - pf[iva]
 
     return jax.jit(jax.vmap(one))(Q, V, AA)

@@ -147,7 +147,7 @@ class MotionProblem:
       derivatives: how the rollout is differentiated (`cstorm.simulate.rollout`):
         ``"analytic"`` (default: JAX differentiates the scan, with the analytic
         hybrid-dynamics Jacobians inside), ``"parallel"`` (the step Jacobians of all
-        steps at once, then a linear recurrence, `cstorm.rollout_tangents`; with
+        steps at once, then a linear recurrence, `cstorm.simulate.tangents`; with
         ``"fwd"`` the values come from the same pass, and with `record_grid_only` only
         the constraint grid's points are differentiated: one values+Jacobian evaluation
         of the tumbler's segments 2-4x faster (start 145 against 289 ms, roll 72
@@ -657,7 +657,7 @@ class MotionProblem:
             eye = jnp.eye(n, dtype=x.dtype)
             if self.derivatives == "parallel":
                 # the time-parallel rule evaluates the primal rollout once inside the JVP and
-                # its tangents from that (`cstorm.rollout_tangents`): take the values from
+                # its tangents from that (`cstorm.simulate.tangents`): take the values from
                 # there instead of a second rollout (the same code: the values and the
                 # Jacobians are bitwise those of the separate primal; ~20 % faster)
                 def jvp(t):

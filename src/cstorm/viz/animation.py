@@ -23,6 +23,8 @@ import subprocess
 
 import numpy as np
 
+from ..io.files import atomic_write
+
 
 def frame_indices(t, fps=25.0, max_frames=2000):
     """Grid indices of frames at ``fps`` frames per second of motion time (the first
@@ -161,7 +163,6 @@ def write_gif(frames, path, fps, colors=64):
     from PIL import Image
     from matplotlib import colors as mcolors
 
-    from ..report import atomic_write
 
     idx = np.unique(np.linspace(0, len(frames) - 1, min(8, len(frames))).astype(int))
     w = frames[0].shape[1]
@@ -183,7 +184,6 @@ def write_mp4(frames, path, fps, ffmpeg=None):
     ffmpeg = ffmpeg or shutil.which("ffmpeg")
     if not ffmpeg or not frames:
         return None
-    from ..report import atomic_write
 
     h, w = frames[0].shape[:2]
     h2, w2 = h - h % 2, w - w % 2

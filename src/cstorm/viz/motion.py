@@ -6,6 +6,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import jax
+
+from ..analysis.segments import problem_segments, segment_solutions
+from ..contact import contact_labels
+from ..dynamics.energy import center_of_mass
+from ..dynamics.kinematics import forward_kinematics
 
 
 @dataclasses.dataclass
@@ -50,8 +56,6 @@ class Motion:
     def from_solution(problem, solution) -> "Motion":
         """Join the segments of ``solution`` (of ``problem``, a `MotionProblem` or
         `MotionSequence`) into one motion."""
-        from ..contact import contact_labels
-        from ..report import problem_segments, segment_solutions
 
         segs, sols = problem_segments(problem), segment_solutions(solution)
         segs = segs[:len(sols)]
@@ -116,9 +120,6 @@ class Motion:
         """``(poses (N, n_bodies, 4, 4), com (N, 3))`` on the whole grid (world frame;
         computed once by one compiled, vmapped forward-kinematics call, then cached)."""
         if getattr(self, "_kin", None) is None:
-            import jax
-            from ..dynamics.kinematics import forward_kinematics
-            from ..dynamics.energy import center_of_mass
 
             fn = jax.jit(jax.vmap(lambda m, q: (forward_kinematics(m, q), center_of_mass(m, q)), in_axes=(None, 0)))
             poses, com = fn(self.model, np.asarray(self.q))

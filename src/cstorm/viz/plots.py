@@ -13,6 +13,8 @@ import os
 
 import numpy as np
 
+from ..io.files import atomic_write
+
 _DPI = 110
 
 
@@ -26,7 +28,6 @@ def _mpl():
 
 
 def _save(fig, path):
-    from ..report import atomic_write
 
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=_DPI, format="png"), ".png")
     _mpl().close(fig)

@@ -59,7 +59,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero
+from ..dynamics.derivatives_fast import any_nonzero, float0_zeros, instantiate_zero, is_inexact, is_symbolic_zero
+from .steps import initial_carry
 
 # steps per batch of step Jacobians: bounds the temporaries (BATCH x n_y x n_w each).
 # One batch is faster to run and to compile than several (the batches run as a loop).
@@ -70,7 +71,7 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run,
     """The rollout's scan over steps with the time-parallel tangent rule.
 
     Args:
-      core: ``core(q, v, x) -> (qn, vn, dJ, out)``, one step (`simulate._step_core`); it
+      core: ``core(q, v, x) -> (qn, vn, dJ, out)``, one step (`cstorm.simulate.steps.step_core`); it
         may close over traced values (model, contact and cost parameters, ``h``): they
         are hoisted by `jax.closure_convert` and differentiated too.
       point: ``point(q, v, x) -> out``: the grid point's recorded data alone (what
@@ -80,7 +81,7 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run,
       q0 (nq,), v0 (nv,): initial state (active entries are overwritten by the paths).
       xs: dict of step inputs, leaves ``(n_seg, seg, ...)``; ``"k"`` the int step index.
       n_run, q_bound, v_bound: as `simulate.rollout` (not differentiated).
-      run: `simulate._run_steps`.
+      run: `cstorm.simulate.steps.run_steps`.
       rows: None, or a sorted tuple of step indices (into the flattened ``n_seg * seg``
         steps): the recorded data is returned (and differentiated: the grid-point
         Jacobians ``E_k``) at these steps only.
@@ -92,7 +93,7 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run,
     x_ex = jax.tree_util.tree_map(lambda a: a[0, 0], xs)
     core_c, consts = jax.closure_convert(core, q0, v0, x_ex)
     # the grid point sees the paths at t_k only (keys ending in 0) and the step index
-    x_ex0 = {k: x for k, x in x_ex.items() if k.endswith("0") or not _is_float(x)}
+    x_ex0 = {k: x for k, x in x_ex.items() if k.endswith("0") or not is_inexact(x)}
     point_c, pconsts = jax.closure_convert(point, q0, v0, x_ex0)
     xf = {k: x for k, x in xs.items() if jnp.issubdtype(x.dtype, jnp.inexact)}
     xi = {k: x for k, x in xs.items() if k not in xf}
@@ -103,11 +104,10 @@ def scan_steps(core, point, layout, q0, v0, xs, n_run, q_bound, v_bound, *, run,
 
 def _primal_full(fns, layout, run, consts, q0, v0, xf, xi, n_run, q_bound, v_bound):
     """The primal scan; the recorded data on every step ``(n_seg, seg, ...)``."""
-    from .simulate import _carry0
 
     iqp, ivp = np.array(layout.qp_idx, int), np.array(layout.vp_idx, int)
     core = lambda q, v, x: fns[0](q, v, x, *consts[0])
-    carry, (outs, keeps) = run(core, _carry0(q0, v0), {**xf, **xi}, n_run, q_bound, v_bound, layout)
+    carry, (outs, keeps) = run(core, initial_carry(q0, v0), {**xf, **xi}, n_run, q_bound, v_bound, layout)
     qN, vN, J, bad, bstep, bdof, breason = carry
     return (qN[iqp], vN[ivp], J, bad, bstep, bdof, breason), outs, keeps
 
@@ -141,14 +141,6 @@ def _batched(f, args, K):
     args = jax.tree_util.tree_map(lambda a: fill(a).reshape((nb, bs) + a.shape[1:]), args)
     out = jax.lax.map(jax.vmap(f), args)
     return jax.tree_util.tree_map(lambda y: y.reshape((nb * bs,) + y.shape[2:])[:K], out)
-
-
-def _float0(x):
-    return np.zeros(np.shape(x), dtype=jax.dtypes.float0)
-
-
-def _is_float(x):
-    return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
 
 
 def _steps_jvp(fns, layout, run, rows, primals, tangents):
@@ -200,7 +192,7 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
         return jnp.concatenate([qn[iqp], vn[ivp], jnp.reshape(dJ, (1,))])
 
     out_leaves, out_tree = jax.tree_util.tree_flatten(jax.tree_util.tree_map(lambda y: y[0, 0], outs))
-    fl = [i for i, y in enumerate(out_leaves) if _is_float(y)]
+    fl = [i for i, y in enumerate(out_leaves) if is_inexact(y)]
     osz = [int(np.prod(np.shape(out_leaves[i]))) for i in fl]
     ooff = np.concatenate([[0], np.cumsum(osz)]).astype(int)
 
@@ -233,14 +225,14 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
                          jnp.where(keep[:, None, None], 0.0, D[:, nz:])], axis=1)
 
     # tangents of the inputs
-    dz0 = jnp.concatenate([_instantiate(dq0)[iqp], _instantiate(dv0)[ivp]])
+    dz0 = jnp.concatenate([instantiate_zero(dq0)[iqp], instantiate_zero(dv0)[ivp]])
     if ukeys:
-        dU = jnp.concatenate([flat(_instantiate(dxf[k])).reshape(K, -1) for k in ukeys], axis=1)
+        dU = jnp.concatenate([flat(instantiate_zero(dxf[k])).reshape(K, -1) for k in ukeys], axis=1)
     else:
         dU = jnp.zeros((K, 0), D.dtype)
     R = RP = None
-    if _any_nonzero(dconsts):
-        dc = jax.tree_util.tree_map(_instantiate, dconsts, is_leaf=_is_zero)
+    if any_nonzero(dconsts):
+        dc = jax.tree_util.tree_map(instantiate_zero, dconsts, is_leaf=is_symbolic_zero)
 
         R = jax.vmap(lambda w, q, v, xik: jax.jvp(lambda c: G(w, c, q, v, xik), (consts,), (dc,))[1])(W, Q, V, XI)
         R = jnp.where(keep[:, None], 0.0, R)
@@ -270,122 +262,12 @@ def _steps_jvp(fns, layout, run, rows, primals, tangents):
     outs_leaves = jax.tree_util.tree_leaves(outs)
     for i, y in enumerate(outs_leaves):
         if douts[i] is None:
-            douts[i] = _float0(y)
+            douts[i] = float0_zeros(y)
     dout = jax.tree_util.tree_unflatten(out_tree, douts)
     primal_out = ((zq, zv, J, bad, bstep, bdof, breason), outs, keeps)
-    tangent_out = ((dzN[:nqp], dzN[nqp:], dJ, _float0(bad), _float0(bstep), _float0(bdof), _float0(breason)),
-                   dout, _float0(keeps))
+    tangent_out = ((dzN[:nqp], dzN[nqp:], dJ, float0_zeros(bad), float0_zeros(bstep), float0_zeros(bdof), float0_zeros(breason)),
+                   dout, float0_zeros(keeps))
     return primal_out, tangent_out
 
 
 _steps.defjvp(_steps_jvp, symbolic_zeros=True)
-
-
-# ---------------------------------------------------------------------------------------
-# Contact forces and hybrid dynamics, composed at the Jacobian level
-# ---------------------------------------------------------------------------------------
-def contact_hybrid(model, contact_fn, q, v, a_active, tau_passive, active):
-    """``f_ext, cdata = contact_fn(q, v)`` then `cstorm.hybrid_dynamics` with that
-    ``f_ext``, with one JVP rule for both: the contact Jacobian ``J_f`` w.r.t. ``(q, v)``
-    (``jacfwd``, ``nq + nv`` directions; with `cstorm.contact_forces` its analytic rule
-    for ground points) is composed with the hybrid algorithm's analytic ``dy/df_ext``
-    once, ``(nv, nq + nv)``, and applied to every tangent: inside the step Jacobians of
-    `_steps_jvp` the tangents are ``n_z + n_u`` wide, more than the ``nq + nv`` inputs
-    of the contact model, and each costs an ``nv``-row product instead of a pass through
-    the contact code and the ``n_bodies x 6`` wrenches. Tangents of closed-over values
-    (environment, contact parameters) and of the model are pushed through by plain JVPs,
-    and only when they are nonzero (on the hopper benchmark this is ~20 % faster than
-    applying the contact model's forward-mode Jacobian to each tangent).
-
-    Args:
-      model: `Model`. contact_fn: ``(q, v) -> (f_ext (n_bodies, 6), cdata)`` (may close
-        over traced values; they are hoisted and differentiated). q (nq,), v (nv,),
-        a_active (n_active,), tau_passive (n_passive,), active: static tuple of nv bools.
-    Returns:
-      ``(tau_active, a_passive, f_ext, cdata)``.
-    """
-    fn_c, consts = jax.closure_convert(contact_fn, q, v)
-    return _ch(fn_c, tuple(active), model, tuple(consts), q, v, a_active, tau_passive)
-
-
-def _ch_primal(fn_c, active, model, consts, q, v, a_active, tau_passive):
-    from .dynamics.hybrid import _hybrid
-
-    f_ext, cdata = fn_c(q, v, *consts)
-    tau_a, a_p = _hybrid(model, q, v, a_active, tau_passive, active, f_ext)
-    return tau_a, a_p, f_ext, cdata
-
-
-_ch = jax.custom_jvp(_ch_primal, nondiff_argnums=(0, 1))
-
-
-def _ch_jvp(fn_c, active, primals, tangents):
-    from .dynamics.derivatives import _hybrid_derivatives
-    from .dynamics.derivatives_fast import ambient_to_tangent
-    from .dynamics.hybrid import _hybrid
-
-    model, consts, q, v, a_active, tau_passive = primals
-    dmodel, dconsts, dq, dv, da, dt = tangents
-    nb = model.n_bodies
-    out, Js, extra, dcontact = _contact_tangents(fn_c, consts, dconsts, q, v, dq, dv)
-    f_ext = out[0]
-    dx = jnp.concatenate([_instantiate(dq), _instantiate(dv)])
-
-    r = _hybrid_derivatives(model, q, v, a_active, tau_passive, active, f_ext)
-    Df = r.df_ext.reshape(model.nv, nb * 6)
-    Mx = Df @ Js[0].reshape(nb * 6, -1)  # dy/d(q, v) through f_ext, (nv, nq + nv) ambient
-    dy = Mx @ dx
-    if not _is_zero(dq):
-        dy = dy + r.dq @ ambient_to_tangent(model, q, dq)
-    if not _is_zero(dv):
-        dy = dy + r.dv @ dv
-    if not _is_zero(da) and da.shape[0]:
-        dy = dy + r.da_active @ da
-    if not _is_zero(dt) and dt.shape[0]:
-        dy = dy + r.dtau_passive @ dt
-    if extra is not None:
-        dy = dy + Df @ extra[0].reshape(-1)
-    act = np.array(active, dtype=bool)
-    ia, ip = np.nonzero(act)[0], np.nonzero(~act)[0]
-    if _any_nonzero(dmodel):  # design derivatives of the dynamics (f_ext held fixed)
-        dm = jax.tree_util.tree_map(_instantiate, dmodel, is_leaf=_is_zero)
-
-        def y_of_model(m):
-            ta, ap = _hybrid(m, q, v, a_active, tau_passive, active, f_ext)
-            return jnp.zeros(model.nv, dtype=r.y.dtype).at[ia].set(ta).at[ip].set(ap)
-
-        dy = dy + jax.jvp(y_of_model, (model,), (dm,))[1]
-    primal = (r.y[ia], r.y[ip], f_ext, out[1])
-    return primal, (dy[ia], dy[ip], dcontact[0], dcontact[1])
-
-
-_ch.defjvp(_ch_jvp, symbolic_zeros=True)
-
-
-def _contact_tangents(fn_c, consts, dconsts, q, v, dq, dv):
-    """The contact model's value, its Jacobians w.r.t. ``x = (q, v)`` (``jacfwd``, one per
-    float output leaf, shapes ``leaf.shape + (nq + nv,)``; XLA drops the unused ones),
-    the JVP along nonzero tangents of its closed-over values (or None), and the tangent
-    of the whole output for ``(dq, dv)``."""
-    out = fn_c(q, v, *consts)
-    leaves, tree = jax.tree_util.tree_flatten(out)
-    fl = [i for i, y in enumerate(leaves) if _is_float(y)]
-    nq = q.shape[0]
-
-    def fleaves(x, c):
-        lv = jax.tree_util.tree_leaves(fn_c(x[:nq], x[nq:], *c))
-        return [lv[i] for i in fl]
-
-    x = jnp.concatenate([q, v])
-    dx = jnp.concatenate([_instantiate(dq), _instantiate(dv)])
-    Js = jax.jacfwd(fleaves)(x, consts)
-    dys = [Jl @ dx for Jl in Js]
-    extra = None
-    if _any_nonzero(dconsts):
-        dc = tuple(_instantiate(t) for t in dconsts)
-        extra = jax.jvp(lambda c: fleaves(x, c), (consts,), (dc,))[1]
-        dys = [a + b for a, b in zip(dys, extra)]
-    douts = [_float0(y) for y in leaves]
-    for i, dyi in zip(fl, dys):
-        douts[i] = dyi
-    return out, Js, extra, jax.tree_util.tree_unflatten(tree, douts)

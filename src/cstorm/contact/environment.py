@@ -46,9 +46,9 @@ import fnmatch
 import numpy as np
 import jax.numpy as jnp
 
-from ._pytree import pytree_dataclass, is_concrete
-from .errors import InputError
-from .geometry.shapes import Box, Capsule, Cylinder, Plane, Shape, Sphere
+from .._pytree import pytree_dataclass, is_concrete
+from ..errors import InputError
+from ..geometry.shapes import Box, Capsule, Cylinder, Plane, Shape, Sphere
 
 __all__ = ["Obstacle", "Environment", "ground", "incline", "box", "platform", "step", "sphere"]
 

@@ -16,11 +16,11 @@ Method
 1. **Linearization.** At a state ``(q, v)`` with the active joints frozen (their
    position and velocity from ``q, v``, their acceleration ``a_a``), the passive state is
    perturbed in the tangent space the rollout integrates in: ``q_p(delta) = q_p exp(delta)``
-   (`cstorm.simulate._passive_exp`: plain addition for 1-DoF joints, the group
+   (`cstorm.simulate.passive_exp`: plain addition for 1-DoF joints, the group
    exponential for free and ball joints) and ``v_p + w``. The vector field is the
-   rollout's own: ``delta' = dexp^-1_delta(v_p + w)`` (`cstorm.simulate._dexpinv`, the
+   rollout's own: ``delta' = dexp^-1_delta(v_p + w)`` (`cstorm.simulate.dexpinv`, the
    RKMK4 map; the identity for 1-DoF joints) and ``w' = a_p`` from
-   `cstorm.simulate._stage` (passive forces, the problem's contact, hybrid dynamics).
+   `cstorm.simulate.dynamics_stage` (passive forces, the problem's contact, hybrid dynamics).
    ``A = d(delta', w') / d(delta, w)`` at 0 by `jax.jacfwd` (2 n_vp tangents), i.e. for
    1-DoF joints ``A = [[0, I], [da_p/dq_p, da_p/dv_p]]``; eigenvalues ``lambda`` by
    ``numpy.linalg.eig``.
@@ -53,7 +53,7 @@ Which states: the stiffness of a contact model depends on the state (normal forc
 slip, which contacts touch) and the modes' rates on the posture (inertia). By default the
 check linearizes along the problem's **initial guess**: its rollout at ``dt / 4`` (the
 dynamics' states, not those of a possibly unstable step; the same compiled rollout as
-`cstorm.report.fidelity`'s ``"fine"`` check), sampled at ``n_states`` (201) times from
+`cstorm.analysis.fidelity`'s ``"fine"`` check), sampled at ``n_states`` (201) times from
 the initial state to the end. The tumbler's ``start`` segment shows why: its initial
 state (arms overhead) allows 4.84 ms, the arms-down posture it moves to 3.75-3.77 ms
 (along its guess: past 4 ms for the last 0.52 s). Give ``along=solution``
@@ -71,7 +71,7 @@ Cost (2-core machine, load ~3-6): the linearization compiles once per joint spli
 contact structure (shared by the segments of a sequence and by every state), ~10 s for
 the tumbler with contact (~1 s for a two-joint model without contact), then ~3 ms per
 state (~0.6 s for 201 states); the rollout at ``dt / 4`` compiles once per horizon and
-structure (~5 s for the tumbler; `cstorm.report.fidelity` reuses it) and runs in ~1 s.
+structure (~5 s for the tumbler; `cstorm.analysis.fidelity` reuses it) and runs in ~1 s.
 ``cstorm solve`` runs the check on every segment before solving and along the
 solution after it.
 """
@@ -85,8 +85,12 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from .errors import DivergenceError, InputError
-from .simulate import INTEGRATORS, _dexpinv, _passive_exp, _stage
+from ..contact import contact_forces
+from ..errors import DivergenceError, InputError
+from ..mapguard import relieve_map_pressure
+from ..optimize.problem import MotionProblem, require_x64
+from ..simulate import INTEGRATORS, dexpinv, dynamics_stage, passive_exp
+from .fidelity import resimulate, static_contact_fn
 
 __all__ = ["check_time_step", "passive_jacobian", "rk4_factor"]
 
@@ -111,7 +115,6 @@ _jac_cache: dict = {}
 
 
 def _env_contact_fn(model, env, contact):
-    from .contact import contact_forces
 
     def cf(q_, v_):
         out = contact_forces(model, env, contact, q_, v_)
@@ -121,11 +124,10 @@ def _env_contact_fn(model, env, contact):
 
 def _jacobian_fn(problem):
     """A jitted ``(model, q, v, aa, env, contact) -> A (2 n_vp, 2 n_vp)``."""
-    from .report import _static_contact_fn
 
     layout = problem.layout
     has_env = problem.env is not None
-    user_cf = None if has_env or problem._contact_fn is None else _static_contact_fn(problem)
+    user_cf = None if has_env or problem._contact_fn is None else static_contact_fn(problem)
     key = (layout, has_env, user_cf)
     if key in _jac_cache:
         return _jac_cache[key]
@@ -138,10 +140,10 @@ def _jacobian_fn(problem):
 
         def field(x):
             d, w = x[:n], x[n:]
-            qi = _passive_exp(model, layout, q, d)
+            qi = passive_exp(model, layout, q, d)
             vi = v.at[ivp].add(w)
-            _, vi, a, _, _, _ = _stage(model, layout, qi, vi, q[iqa], v[iva], aa, 0.0, cf, None, None)
-            return jnp.concatenate([_dexpinv(model, layout, d, vi[ivp]), a[ivp]])
+            _, vi, a, _, _, _ = dynamics_stage(model, layout, qi, vi, q[iqa], v[iva], aa, 0.0, cf, None, None)
+            return jnp.concatenate([dexpinv(model, layout, d, vi[ivp]), a[ivp]])
 
         return jax.jacfwd(field)(jnp.zeros(2 * n, v.dtype))
 
@@ -156,7 +158,6 @@ def passive_jacobian(problem, q=None, v=None, a_active=None) -> np.ndarray:
     active joints frozen there with acceleration ``a_active`` (n_active,) in layout
     order (default 0), w.r.t. the passive tangent offsets and velocities, in the order
     ``problem.layout.vp_idx`` (see the module docstring)."""
-    from .optimize.problem import require_x64
 
     require_x64("check_time_step")
     m = problem.model
@@ -267,11 +268,10 @@ def _floor2(h):
 
 def _rollout_states(problem, ctrl, q0, v0):
     """The rollout of control points ``ctrl`` (layout order) from ``(q0, v0)`` at
-    ``dt / 4`` (`cstorm.report.fidelity`'s ``"fine"`` re-simulation: the same compiled
+    ``dt / 4`` (`cstorm.analysis.fidelity`'s ``"fine"`` re-simulation: the same compiled
     function)."""
-    from .report import _resimulate
 
-    return _resimulate(problem, np.asarray(ctrl), np.asarray(q0), np.asarray(v0), problem.dt / 4, problem.integrator)
+    return resimulate(problem, np.asarray(ctrl), np.asarray(q0), np.asarray(v0), problem.dt / 4, problem.integrator)
 
 
 def _states(problem, q, v, along, n_states):
@@ -385,7 +385,6 @@ def check_time_step(problem, q=None, v=None, *, integrator=None, dt=None, along=
       state, fastest first), ``rollout`` (``"ok"``, a divergence message, or None when
       nothing was rolled out), ``message`` (one line: what to do), ``wall_time_s``.
     """
-    from .optimize.problem import MotionProblem
 
     t0 = time.perf_counter()
     if not isinstance(problem, MotionProblem):
@@ -405,7 +404,6 @@ def check_time_step(problem, q=None, v=None, *, integrator=None, dt=None, along=
                     amplification=None, dof=None, dof_shares={}, t=None, where="no passive DoFs", n_states=0,
                     n_unstable=0, unstable_s=None, eigenvalues=[], rollout=None,
                     message="no passive DoFs: nothing to check", wall_time_s=time.perf_counter() - t0)
-    from .mapguard import relieve_map_pressure
 
     relieve_map_pressure(where="check_time_step")
     states, where, rollout, spacing = _states(problem, q, v, along, n_states)

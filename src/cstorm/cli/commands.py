@@ -19,7 +19,7 @@ def _setup_jax():
     already (by a host program or the test-suite) is left as it is. Before JAX starts,
     `cstorm.allocator.tune_allocator` (``CSTORM_MALLOC=system`` leaves malloc as it is;
     inside a host program that has started JAX already it is left alone)."""
-    from .allocator import tune_allocator
+    from ..allocator import tune_allocator
 
     tune_allocator(late="skip")
     import jax
@@ -40,7 +40,7 @@ def load_model(spec: str, floating_base=None, package_dirs=(), strict=False):
     MJCF or TOML problem file path. ``package_dirs`` and ``strict`` go to the loaders
     (``--package-dir``, ``--strict``)."""
     import cstorm as cs
-    from .report import problem_segments
+    from ..report import problem_segments
 
     if spec in cs.robots.REGISTRY:
         return cs.robots.get(spec)
@@ -63,7 +63,7 @@ def load_model(spec: str, floating_base=None, package_dirs=(), strict=False):
 
 
 def cmd_info(args):
-    from .model.info import describe
+    from ..model.info import describe
 
     model = _with_warnings_on_stderr(args, lambda: load_model(args.model, floating_base=args.floating_base,
                                                               package_dirs=_package_dirs(args), strict=args.strict))
@@ -76,7 +76,7 @@ def cmd_info(args):
 
 def _package_dirs(args):
     """``--package-dir`` values, made absolute and checked."""
-    from .errors import InputError
+    from ..errors import InputError
 
     out = []
     for d in getattr(args, "package_dir", None) or []:
@@ -115,8 +115,8 @@ def cmd_demo(args):
     (the tumbler sequence, `cstorm.viz.demo.DEMO_PROBLEM`) exactly as ``cstorm solve``
     does and write its outputs (summary.json, solution.npz, trajectory.csv, plots,
     animation) to ``--out``. Exit codes as for ``cstorm solve``."""
-    from .report import problem_segments
-    from .viz import demo as viz_demo
+    from ..report import problem_segments
+    from ..viz import demo as viz_demo
 
     out = args.out
     os.makedirs(out, exist_ok=True)
@@ -134,7 +134,7 @@ def cmd_demo(args):
 def _parse_set(items):
     """``--set KEY=VALUE`` pairs -> dict (VALUE parsed as JSON when it is JSON, else a
     string)."""
-    from .errors import InputError
+    from ..errors import InputError
 
     out = {}
     for it in items or []:
@@ -154,8 +154,8 @@ def resolve_problem(spec: str, kwargs=None, segment=None, package_dirs=(), stric
     sequence (see `cstorm.report.select_segment`); ``package_dirs`` and ``strict`` go to
     a problem file's robot loader (shipped examples build their robots themselves)."""
     import cstorm as cs
-    from .errors import InputError
-    from .report import problem_from_source
+    from ..errors import InputError
+    from ..report import problem_from_source
 
     if spec.lower().endswith(".toml") or (os.path.sep in spec and os.path.exists(spec)):
         if not os.path.exists(spec):
@@ -197,12 +197,12 @@ def _check_time_steps(problem, log):
     step is past its integrator's stability limit. Returns the per-segment results
     (recorded under ``time_step`` in summary.json; `_check_solution_steps` adds the
     check along the solution). A check that fails with an error is recorded (``ok:
-    None``) and does not stop the solve. Cost: see `cstorm.stepcheck` (the
+    None``) and does not stop the solve. Cost: see `cstorm.analysis.timestep` (the
     linearization compiles once per robot and contact structure, ~10 s for the tumbler
     on a loaded 2-core machine; the guess's rollout at dt/4 is the fidelity check's,
     compiled once)."""
-    from .report import problem_segments
-    from .stepcheck import check_time_step
+    from ..report import problem_segments
+    from ..analysis.timestep import check_time_step
 
     out = []
     for seg in problem_segments(problem):
@@ -224,8 +224,8 @@ def _check_solution_steps(problem, sol, time_step):
     dt/4 from its start), stored as ``"solution"`` in that segment's entry of
     ``time_step``; a warning line on stderr where not ok. Cheap: the linearization and
     the rollout are compiled by then."""
-    from .report import problem_segments, segment_solutions
-    from .stepcheck import check_time_step
+    from ..report import problem_segments, segment_solutions
+    from ..analysis.timestep import check_time_step
 
     for seg, s, r in zip(problem_segments(problem), segment_solutions(sol), time_step):
         try:
@@ -246,9 +246,9 @@ def cmd_solve(args):
     and after solving along the solution: a warning on stderr when past it, the results
     under ``time_step`` in summary.json."""
     import cstorm as cs
-    from .errors import InputError
-    from .optimize.sequence import MotionSequence
-    from .report import write_outputs
+    from ..errors import InputError
+    from ..optimize.sequence import MotionSequence
+    from ..report import write_outputs
 
     problem, source = _with_warnings_on_stderr(args, lambda: resolve_problem(
         args.problem, _parse_set(args.set), args.segment, package_dirs=_package_dirs(args),
@@ -274,7 +274,7 @@ def cmd_solve(args):
         f": {problem!r}; method {method}, max_iter {max_iter}; output {out}")
     time_step = None if getattr(args, "no_step_check", False) else _check_time_steps(problem, log)
     if args.guess:
-        from .report import solution_at
+        from ..report import solution_at
 
         sol = solution_at(problem, evaluate=False)
         log("--guess: not solving; writing the outputs of the initial guess (cost and violation not evaluated)")
@@ -316,9 +316,9 @@ def cmd_animate(args):
     import numpy as np
 
     import cstorm as cs
-    from .errors import InputError
-    from .report import problem_from_source, problem_segments, render, segment_solutions, write_csv
-    from .viz.motion import Motion
+    from ..errors import InputError
+    from ..report import problem_from_source, problem_segments, render, segment_solutions, write_csv
+    from ..viz.motion import Motion
 
     path = args.solution
     npz = os.path.join(path, "solution.npz") if os.path.isdir(path) else path
@@ -338,7 +338,7 @@ def cmd_animate(args):
                          f"({len(segs)} segment(s), nq={segs[0].model.nq}; the solution has {len(sols)} segment(s), "
                          f"q of shape {np.shape(sols[0].trajectory['q'])})")
     stored = (info.get("provenance") or {}).get("problem_hash")
-    from .report import problem_hash
+    from ..report import problem_hash
     if stored and stored != problem_hash(problem) and not args.json:
         print(f"cstorm animate: warning: the rebuilt problem's hash {problem_hash(problem)} differs from the saved "
               f"one {stored} (the example or file changed since); drawing anyway", file=sys.stderr)
@@ -469,7 +469,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def main(argv=None):
-    from .errors import CstormError, DivergenceError
+    from ..errors import CstormError, DivergenceError
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

@@ -31,7 +31,13 @@ import tomllib
 
 import numpy as np
 
-from .errors import CstormError, InputError
+import cstorm as cs
+
+from ..analysis.criteria import check_criteria_spec
+from ..contact import environment as E
+from ..errors import CstormError, InputError
+from ..optimize import constraints as K, costs as C
+from ..optimize.problem import MotionProblem
 
 __all__ = ["ProblemFileError", "load_problem", "load_problem_text"]
 
@@ -195,10 +201,6 @@ def load_problem_text(text: str, path: str = "<string>", overrides=None, package
     packages, searched before the file's ``[robot] package_dirs``) and ``strict`` (or-ed
     with the file's ``[robot] strict``) are the command line's ``--package-dir`` and
     ``--strict``."""
-    import cstorm as cs
-    from .optimize import costs as C, constraints as K
-    from .optimize.problem import MotionProblem
-    from .report import check_criteria_spec
 
     ctx = _Ctx(path)
     try:
@@ -444,7 +446,6 @@ _OBSTACLES = {
 
 
 def _environment(ctx, d, cs):
-    from . import environment as E
 
     ctx.keys(d, {"obstacle", "pairs", "self_collision", "cylinder_rim_points"}, "[environment]")
     obs = []

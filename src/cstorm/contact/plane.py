@@ -48,10 +48,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import spatial as sp
-from .dynamics.derivatives import _tree_masks
-from .dynamics.derivatives_fast import _any_nonzero, _instantiate, _is_zero, ambient_to_tangent
-from .dynamics.kinematics import joint_placements, world_placements
+from .. import spatial as sp
+from ..dynamics.derivatives import tree_masks
+from ..dynamics.derivatives_fast import any_nonzero, instantiate_zero, is_symbolic_zero, ambient_to_tangent
+from ..dynamics.kinematics import joint_placements, world_placements, world_twists
+from .laws import point_contact_force
 
 __all__ = ["plane_points"]
 
@@ -81,13 +82,11 @@ def _kin(model, q):
     return Rs, ps, Ss, oR, op
 
 
-def _value(bidx, model, q, v, feats, params, kin=None):
-    from .contact import _world_twists, point_contact_force
-
+def plane_points_value(bidx, model, q, v, feats, params, kin=None):
     c, r, N, off = feats
     Rs, ps, Ss, oR, op = kin if kin is not None else _kin(model, q)
     Rw, pw = jnp.stack(oR), jnp.stack(op)
-    w, vo = _world_twists(model, Rs, ps, Ss, oR, v)
+    w, vo = world_twists(model, Rs, ps, Ss, oR, v)
     b = np.asarray(bidx)
     # R_b c as a sum over R's columns: gathers of (k, 3), never a (k, 3, 3) array
     x = Rw[b, :, 0] * c[:, 0:1] + Rw[b, :, 1] * c[:, 1:2] + Rw[b, :, 2] * c[:, 2:3] + pw[b]
@@ -101,16 +100,14 @@ def _value(bidx, model, q, v, feats, params, kin=None):
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _plane(bidx, model, q, v, feats, params):
-    return _value(bidx, model, q, v, feats, params)[:6]
+    return plane_points_value(bidx, model, q, v, feats, params)[:6]
 
 
 def _jvp(bidx, primals, tangents):
-    from .contact import point_contact_force
-
     model, q, v, feats, params = primals
     dmodel, dq, dv, dfeats, dparams = tangents
     kin = _kin(model, q)
-    d, p, u, N_mag, f_t, W, x = _value(bidx, model, q, v, feats, params, kin)
+    d, p, u, N_mag, f_t, W, x = plane_points_value(bidx, model, q, v, feats, params, kin)
     out = (d, p, u, N_mag, f_t, W)
     k = d.shape[0]
     N = feats[2]
@@ -118,9 +115,9 @@ def _jvp(bidx, primals, tangents):
     dtype = W.dtype
     douts = [jnp.zeros_like(y) for y in out]
 
-    if not (_is_zero(dq) and _is_zero(dv)):
+    if not (is_symbolic_zero(dq) and is_symbolic_zero(dv)):
         _, _, Ss, oR, op = kin
-        anc, dj, *_ = _tree_masks(model)
+        anc, dj, *_ = tree_masks(model)
         nv = model.nv
         # joint motion subspaces about the world origin (6, nv), body twists (nb, 6)
         J = jnp.concatenate([sp.act_motion(oR[i], op[i], Ss[i]) for i in range(model.n_bodies)], axis=1)
@@ -184,16 +181,16 @@ def _jvp(bidx, primals, tangents):
         jac_q = (Jd, jnp.moveaxis(Jx, 0, 1), jnp.moveaxis(Juq, 0, 1), nm_q, jnp.moveaxis(ft_q, 0, 1),
                  jnp.moveaxis(W_q, 0, 1))
         jac_v = (None, None, jnp.moveaxis(Juv, 0, 1), nm_v, jnp.moveaxis(ft_v, 0, 1), jnp.moveaxis(W_v, 0, 1))
-        if not _is_zero(dq):
-            dqt = ambient_to_tangent(model, q, _instantiate(dq))
+        if not is_symbolic_zero(dq):
+            dqt = ambient_to_tangent(model, q, instantiate_zero(dq))
             douts = [Jy @ dqt for Jy in jac_q]
-        if not _is_zero(dv):
-            dvv = _instantiate(dv)
+        if not is_symbolic_zero(dv):
+            dvv = instantiate_zero(dv)
             douts = [y if Jy is None else y + Jy @ dvv for y, Jy in zip(douts, jac_v)]
 
-    if _any_nonzero((dmodel, dfeats, dparams)):
-        inst = lambda t: jax.tree_util.tree_map(_instantiate, t, is_leaf=_is_zero)
-        extra = jax.jvp(lambda mm, ff, pp: _value(bidx, mm, q, v, ff, pp)[:6], (model, feats, params),
+    if any_nonzero((dmodel, dfeats, dparams)):
+        inst = lambda t: jax.tree_util.tree_map(instantiate_zero, t, is_leaf=is_symbolic_zero)
+        extra = jax.jvp(lambda mm, ff, pp: plane_points_value(bidx, mm, q, v, ff, pp)[:6], (model, feats, params),
                         (inst(dmodel), inst(dfeats), inst(dparams)))[1]
         douts = [a + e for a, e in zip(douts, extra)]
     return out, tuple(douts)

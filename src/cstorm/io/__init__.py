@@ -1,0 +1,2 @@
+"""Files: atomic writes and strict JSON (`files`), motion problems as TOML files
+(`problemfile`)."""

@@ -609,7 +609,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
 
     from .. import __version__ as _ver
     from .ddp import DDPOptions, initial_multipliers, solve_ocp
-    from .solution import Solution
+    from .solution import Solution, Status
 
     t0 = time.perf_counter()
     tr, C = compiled_transcription(problem)
@@ -662,7 +662,9 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                 problem_description=problem.describe(), cstorm_version=_ver,
                 constraint_rows=dict(eq=tr.eq_terms, ineq=tr.in_terms, trajectory_eq=tr.geq_terms,
                                      trajectory_ineq=tr.gin_terms))
-    sol = Solution(success=bool(success), message=message, cost=float(res.cost),
+    status = (Status.SOLVED if success else Status.INTERRUPTED if res.status == "interrupted" else
+              Status.INFEASIBLE if res.status == "converged" else Status.SOLVER_FAILED)
+    sol = Solution(success=bool(success), status=status, message=message, cost=float(res.cost),
                    constraint_violation=float(res.violation), iterations=res.iterations,
                    x=np.asarray(res.U).ravel(), trajectory=traj, history=res.history, problem=problem.name,
                    params={k: np.asarray(v).tolist() for k, v in problem.params.items()},

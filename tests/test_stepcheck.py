@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import cstorm as cs
-from cstorm import cli
+from cstorm.cli import commands as cli
 from cstorm.analysis.timestep import RK4_REAL_LIMIT, rk4_factor
 
 T = importlib.import_module("cstorm.examples.tumbler")

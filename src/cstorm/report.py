@@ -330,7 +330,9 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
         solution.save(npz)
         files.append("solution.npz")
     if fidelity_report is None and check_fidelity:
-        say("fidelity: re-simulating every segment at dt/4 and with DOP853 ...")
+        torques = any("ctrl" not in s.trajectory for s in (solution.segments or [solution]))
+        say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
+                                                                    "with DOP853") + " ...")
         try:
             fidelity_report = fidelity(problem, solution)
         except KeyboardInterrupt:

@@ -250,8 +250,9 @@ class _Compiled:
                 return o.difference(xn_ref, xn), y
 
             z0 = jnp.concatenate([jnp.zeros(nx, x.dtype), u])
-            (dxn, y), (Jx, Jy) = jax.jvp(f, (z0,), (jnp.eye(nx + nu, dtype=x.dtype),)) if False else \
-                (f(z0), jax.jacfwd(f)(z0))
+            # values and Jacobians from one batched forward pass over the nx + nu tangents
+            (dxn, y), (Jx, Jy) = jax.vmap(lambda t: jax.jvp(f, (z0,), (t,)), out_axes=(None, -1))(
+                jnp.eye(nx + nu, dtype=x.dtype))
             return dxn, y, Jx, Jy
 
         ks = jnp.arange(N)
@@ -294,8 +295,9 @@ class _Compiled:
             Zi = jnp.einsum("gky,kyz->kgz", Gi, JY)
             g = g + jnp.einsum("kgz,g->kz", Ze, we) + jnp.einsum("kgz,g->kz", Zi, wi)
             H = H + jnp.einsum("kgz,g,kgw->kzw", Ze, he, Ze) + jnp.einsum("kgz,g,kgw->kzw", Zi, hi, Zi)
-        gaps = jnp.concatenate([jnp.zeros((1, nx), X.dtype), -gaps])  # f_{k+1} = x_{k+1} (-) f(x_k, u_k), sign below
-        return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=-gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
+        # gaps[k] = f(x_{k-1}, u_{k-1}) (-) x_k (tangent at x_k), none at the fixed start
+        gaps = jnp.concatenate([jnp.zeros((1, nx), X.dtype), gaps])
+        return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
                     luu=H[:, nx:, nx:], lux=H[:, nx:, :nx])
 
     # -- backward pass -------------------------------------------------------------------

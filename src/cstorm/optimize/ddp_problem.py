@@ -494,14 +494,17 @@ def _guess_torques(p, Q, V, AA, data):
     iva, ivp = np.array(lay.va_idx, int), np.array(lay.vp_idx, int)
     cfn = p._contact_fn
 
-    def one(q, v, aa):
+    def one(q, v, aa, data):
         model = data["model"]
         pf = passive_forces(model, q, v)
         f_ext = None if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)[0]
         tau_a, _ = hybrid_fast(model, q, v, aa, pf[ivp], lay.active, f_ext)
         return tau_a - pf[iva]
 
-    return jax.jit(jax.vmap(one))(Q, V, AA)
+    key = "ddp_guess_torques"  # compiled once per problem (the guess and the hold torques share it)
+    if key not in p._compiled:
+        p._compiled[key] = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None)))
+    return p._compiled[key](Q, V, AA, data)
 
 
 def _follow_guess(C, tr, lin, X, U, data, al):

@@ -129,6 +129,11 @@ class DDPOptions:
     reg_min: float = 1e-9
     reg_max: float = 1e9
     alpha_min: float = 2.0 ** -12
+    reg_down: float = 1.0 / 3.0
+    reg_u: float = 1.0
+    inner_cap: float = 1e-3
+    inner_ratio: float = 1e-2
+    reg_up_below: float = 0.5
     armijo: float = 0.1
     inner_max_iter: int = 60
     stall_window: int = 5
@@ -142,7 +147,9 @@ class DDPResult:
     constraint violation over enforced rows), ``gap`` (max dynamics gap), ``converged``,
     ``status`` (a short reason: "converged", "max_iter", "line_search", "interrupted",
     "diverged"), ``iterations``, ``history`` (per-iteration dicts), ``lam_eq``,
-    ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties)."""
+    ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties), ``worst`` (the
+    most violated row, `_worst_row`) and ``multipliers`` (every multiplier and penalty,
+    node and trajectory rows: what `solve_ocp` takes back as ``multipliers`` to warm-start)."""
 
     X: np.ndarray
     U: np.ndarray
@@ -159,6 +166,7 @@ class DDPResult:
     mu_eq: np.ndarray
     mu_in: np.ndarray
     worst: tuple = None
+    multipliers: dict = None
 
 
 def _worst_row(ev):
@@ -301,7 +309,7 @@ class _Compiled:
                     luu=H[:, nx:, nx:], lux=H[:, nx:, :nx])
 
     # -- backward pass -------------------------------------------------------------------
-    def _backward(self, lin, U, lb, ub, reg):
+    def _backward(self, lin, U, lb, ub, reg, reg_u=1.0):
         """Riccati recursion with gaps and control boxes. Returns ``k (N+1, nu), K (N+1,
         nu, nx)``, the model terms ``d1 = sum Q_u k``, ``d2 = sum k' Q_uu k`` and ``ok``
         (every factorization succeeded)."""
@@ -322,7 +330,7 @@ class _Compiled:
             Qx = lx + A_.T @ Vx1
             Qu = lu + B_.T @ Vx1
             Qxx = lxx + A_.T @ Vxr @ A_
-            Quu = luu + B_.T @ Vxr @ B_ + reg * eye_u
+            Quu = luu + B_.T @ Vxr @ B_ + (reg_u * reg + 1e-12) * eye_u
             Qux = lux + B_.T @ Vxr @ A_
             Quu = 0.5 * (Quu + Quu.T)
             du, K_, free, ok = _box_qp(Quu, Qu, Qux, lo - u, hi - u)
@@ -421,14 +429,16 @@ def _max(a):
 
 
 def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None, *, compiled=None, callback=None,
-              log=print):
+              log=print, multipliers=None, row_label=None):
     """Solve ``ocp`` from the (possibly infeasible) iterate ``X0`` (N+1, n_xa), ``U0``
     (N+1, nu); ``X0[0]`` is the fixed initial state. ``lb``, ``ub``: (N+1, nu) control
     bounds (``+-inf`` where unbounded). ``data``: the dynamic inputs of the OCP's
     functions. ``compiled``: a `_Compiled` of this OCP to reuse (`compile_ocp`).
     ``callback(info)``: called after every iteration with its history entry; raising
     KeyboardInterrupt stops the solve, which returns the best iterate so far. Returns
-    `DDPResult`."""
+    `DDPResult`. ``multipliers``: a `DDPResult.multipliers` to start from (default: zero
+    multipliers, penalty ``mu0``). ``row_label(kind, node, row) -> str``: names the most
+    violated row in the verbose lines (default: kind, node and row numbers)."""
     opt = options or DDPOptions()
     C = compiled or _Compiled(ocp)
     N = ocp.n_steps
@@ -437,6 +447,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     lb, ub = jnp.asarray(lb, jnp.float64), jnp.asarray(ub, jnp.float64)
     U = jnp.clip(U, lb, ub)
     al = initial_multipliers(ocp, opt.mu0)
+    if multipliers is not None:
+        al = {k: jnp.asarray(multipliers[k], jnp.float64) for k in al}
     t0 = time.perf_counter()
     ev = C.evaluate(X, U, data, al)
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
@@ -450,13 +462,13 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     inner = outer = 0
     if opt.verbose:
         log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
-            f"{'time':>7}")
+            f"{'time':>7}  most violated")
     try:
         lin = None
         while it < opt.max_iter:
             if lin is None:  # (kept when the iterate and the multipliers did not change)
                 lin = C.linearize(X, U, data, al)
-            bw = C.backward(lin, U, lb, ub, reg)
+            bw = C.backward(lin, U, lb, ub, reg, opt.reg_u)
             if not bool(bw["ok"]):
                 reg *= 10.0
                 if reg > opt.reg_max:
@@ -467,7 +479,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             merit = float(ev["merit"])
             stat = -d1 / (1.0 + abs(merit))
             viol = _max(_rows(ev))
-            inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
+            inner_tol = max(opt.tol, min(opt.inner_cap, viol * opt.inner_ratio)) if viol > opt.constraint_tol else opt.tol
             # no progress: the merit changed by less than tol (relative) over the last
             # `stall_window` iterations (as SLSQP's ftol)
             taken = [h["merit"] for h in history[-3 * opt.stall_window:] if h["step"] > 0 and h["outer"] == outer]
@@ -513,8 +525,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 feasible = feasible or gap_new <= opt.gap_tol or alpha == 1.0
                 step = alpha
                 if alpha == 1.0:
-                    reg = max(opt.reg_min, reg / 10.0)
-                elif alpha < 0.1:
+                    reg = max(opt.reg_min, reg * opt.reg_down)
+                elif alpha < opt.reg_up_below:
                     reg = min(opt.reg_max, reg * 10.0)
             gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1))) if not feasible else 0.0
             viol = _max(_rows(ev))
@@ -524,8 +536,10 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             if feasible and (best is None or _better(entry, best[0], opt)):
                 best = (entry, X, U)
             if opt.verbose:
+                w = _worst_row(ev) if viol > opt.constraint_tol else None
+                where = "" if w is None else (row_label(*w[:3]) if row_label else f"{w[0]} node {w[1]} row {w[2]}")
                 log(f"{it:5d} {entry['cost']:13.6e} {entry['merit']:13.6e} {viol:9.2e} {gap:9.2e} {reg:8.1e} "
-                    f"{step:8.2e} {stat:9.2e} {entry['time']:7.2f}")
+                    f"{step:8.2e} {stat:9.2e} {entry['time']:7.2f}  {where}")
             if callback is not None:
                 callback(entry)
     except KeyboardInterrupt:
@@ -539,7 +553,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
                      status=status, iterations=it, history=history, lam_eq=np.asarray(al["lam_eq"]),
-                     lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]))
+                     lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]),
+                     multipliers={k: np.asarray(v) for k, v in al.items()})
 
 
 def _better(a, b, opt):

@@ -644,7 +644,8 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
         r0 = _follow_guess(C, tr, lin, Xj, Uj, data, al)
         if r0 is not None:
             X0, U0 = r0
-    res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log)
+    res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log,
+                    row_label=tr.row_label)
     traj = tr.trajectory(res.Y)
     traj["u"] = np.asarray(res.U)
     if traj.get("contact") is not None:

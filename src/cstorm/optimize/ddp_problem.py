@@ -365,7 +365,12 @@ class _ActiveBoundary:
     """The active joints' boundary conditions, which the spline transcription imposes by
     construction, as DDP equality rows: at the end, ``q_a = q_final_active``, ``v_a =
     v_final_active`` (or 0 with ``rest_end``) and ``a_a = 0`` (``rest_end``); at the start
-    ``a_a = 0`` (``rest_start``). rad, rad/s, rad/s^2 (m for prismatic joints)."""
+    ``a_a = 0`` (``rest_start``). rad and rad/s (m, m/s for prismatic joints); the
+    accelerations enter as the velocity change over one step, ``dt a_a`` (rad/s), so that
+    they share the velocity rows' units and tolerance: resting on a compliant contact,
+    the final accelerations change by ~1e5 rad/s^2 per rad of the final state (and the
+    friction law is strongly curved at zero slip), so a tolerance of 1e-6 rad/s^2 would
+    ask the end state for a precision no linearization of the trajectory resolves."""
 
     kind = "eq"
 
@@ -385,14 +390,14 @@ class _ActiveBoundary:
         return m
 
     def point_values(self, ctx, point):  # rest_start
-        return point["a"][self.iva]
+        return self.p.dt * point["a"][self.iva]
 
     def values(self, ctx, end, samples):
         p, out = self.p, []
         if p.qa_final is not None:
             out.append(end["q"][self.ia] - jnp.asarray(p.qa_final))
         if p.rest_end:
-            out += [end["v"][self.iva], end["a"][self.iva]]
+            out += [end["v"][self.iva], p.dt * end["a"][self.iva]]
         elif p.va_final is not None:
             out.append(end["v"][self.iva] - jnp.asarray(p.va_final))
         return jnp.concatenate(out)

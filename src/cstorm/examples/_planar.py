@@ -12,13 +12,10 @@ import math
 
 import numpy as np
 
-import jax.numpy as jnp
+from ..errors import DivergenceError, ProblemError
+from ..simulate import simulate
 
-from ..errors import ProblemError
-from ..optimize.constraints import Constraint
-from ..optimize.costs import resolve
-
-__all__ = ["DENSITY", "capsule_inertia", "trajectory_contact_d", "criterion", "longest_run", "hold_test", "SlipPower"]
+__all__ = ["DENSITY", "capsule_inertia", "trajectory_contact_d", "criterion", "longest_run", "hold_test"]
 
 DENSITY = 1000.0  # kg/m^3, MuJoCo's default geom density
 
@@ -82,9 +79,6 @@ def hold_test(problem, solution, duration=1.0):
     pos_dev, v_end)``: the largest pitch deviation from the final value (rad), the
     largest x-z displacement (m), and the largest base speed at the end of the hold (m/s,
     rad/s); all ``inf`` if the hold diverges."""
-    from ..errors import DivergenceError
-    from ..simulate import simulate
-
     p = problem
     qT, vT = np.asarray(solution.trajectory["q"][-1]), np.asarray(solution.trajectory["v"][-1])
     try:
@@ -95,26 +89,3 @@ def hold_test(problem, solution, duration=1.0):
     pitch_dev = float(np.max(np.abs(q[:, 2] - qT[2])))
     pos_dev = float(np.max(np.linalg.norm(q[:, :2] - qT[:2], axis=1)))
     return pitch_dev, pos_dev, float(np.max(np.abs(v[-1, :3])))
-
-
-class SlipPower(Constraint):
-    """No skating: at every constraint-grid sample, the contact slip power
-    ``sum_k N_k sqrt(|v_t,k|^2 + v_eps^2)`` (W; ``N_k`` the normal force magnitude,
-    ``v_t,k`` the tangential velocity of contact point ``k``) is at most ``limit`` (W, or
-    a problem-parameter name). A stance foot's penalty friction creeps at ~1 cm/s under
-    body weight (~3 W); a skimming swing foot at 1 m/s under 40 N is 40 W."""
-
-    kind = "ineq"
-
-    def __init__(self, limit, v_eps=1e-3, stage=0, name="slip power"):
-        self.limit, self.v_eps, self.stage, self.name, self.kind = limit, float(v_eps), int(stage), name, "ineq"
-
-    def values(self, ctx, end, samples):
-        c = samples["contact"]
-        v, n = c.velocity, c.n
-        vt = v - jnp.sum(v * n, axis=-1, keepdims=True) * n
-        speed = jnp.sqrt(jnp.sum(vt * vt, axis=-1) + self.v_eps ** 2)
-        return resolve(self.limit, ctx.params) - jnp.sum(c.normal_magnitude * speed, axis=-1)
-
-    def describe(self):
-        return {"type": "SlipPower", "limit": self.limit, "v_eps": self.v_eps, "stage": self.stage}

@@ -76,7 +76,7 @@ Why the formulation is what it is:
   values down to 2.5e-6); a free posture moves the balance on the foot directly;
 - 1.5 s with 16 control points leave room and authority to settle after the landing
   (at 1.2 s / 12 points the plan stalls with violations 0.3-8);
-- `_planar.SlipPower` <= 40 W from stage 1 (a foot sliding 0.3 m/s under body weight is
+- `cstorm.optimize.SlipPower` <= 40 W from stage 1 (a foot sliding 0.3 m/s under body weight is
   ~50 W) and ``max_pitch`` 0.6 rad: without them the optimizer gains the distance by
   leaning back and sliding the foot after the landing;
 - "at rest" is judged by the hold test rather than a 1e-2 m/s^2 acceleration bound: on
@@ -251,7 +251,7 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     point at least ``clearance`` m up at some instant (not scheduled); ``|pitch| <=
     max_pitch`` rad; joint limits and ``|tau| <= 200 N m`` (sampled, and with
     ``dense_torque`` on every step after the ramp, along ``dense_ramp``); with
-    ``slip_power`` (W) from stage 1 `_planar.SlipPower`: the contacts' sliding power
+    ``slip_power`` (W) from stage 1 `cstorm.optimize.SlipPower`: the contacts' sliding power
     bounded at every sample, so that the distance is not gained by sliding the foot. The
     last stage stops at SLSQP tolerance ``final_tol``. Success criteria: `hop_criteria`
     with `ACC_TOL` and the `HOLD` test.
@@ -262,7 +262,7 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     (default `RAMP`). ``landing``: further `hop_problem` arguments.
     """
     from ._hopping import hop_problem
-    from ._planar import SlipPower
+    from ..optimize.constraints import SlipPower
 
     model = hopper_model(armature=armature)
     contact = hopper_contact() if contact is None else contact

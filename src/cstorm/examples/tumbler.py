@@ -69,7 +69,7 @@ summary.json. With ``dense_torque=True`` the limits also hold on every integrati
 that way on their own, the handstand does not, so it is not the default.
 
 Initial guesses are posture-level keyframes joined by smoothstep ramps
-(`_hopping.keyframe_guess`), documented at each constant. Where a guess counterbalances
+(`cstorm.optimize.keyframe_guess`), documented at each constant. Where a guess counterbalances
 (the hip at 0.1-0.16 rad while the arms swing), the value comes from a scan of rollouts:
 standing on the compliant foot is only marginally stable (the foot's rotational contact
 stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging the arms without it
@@ -92,7 +92,8 @@ from ..contact import Environment, ground
 from ..optimize import costs as C
 from ..optimize import constraints as K
 from ..optimize.problem import MotionProblem
-from ._hopping import ScaledTorqueLimits
+from ..optimize.constraints import ScaledTorqueLimits
+from ..optimize.guesses import keyframe_guess
 from ..optimize.sequence import MotionSequence
 from ..analysis.criteria import evaluate_criteria
 
@@ -188,7 +189,7 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
 #: shoulder would need 13.5 N m to stop the tipping in time)
 HANDSTAND_T, HANDSTAND_N_CTRL = 2.5, 15
 #: the default initial guess of the handstand, (time s, (hip, shoulder) rad) with
-#: smoothstep ramps between (see `_hopping.keyframe_guess`): a kick. Fold at the hip
+#: smoothstep ramps between (see `cstorm.optimize.keyframe_guess`): a kick. Fold at the hip
 #: (legs forward, -0.8 rad) while the arms swing forward and down to the floor
 #: (shoulder 2.5) by 0.7 s, swing the legs back and up over the hands while the arms go
 #: overhead (hip -0.3, shoulder -0.2 at 1.6 s), straighten by 2.0 s and hold. Chosen
@@ -373,7 +374,6 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         handstand ``"bridge"`` (`BRIDGE_KEYFRAMES` with `bridge_nodes` as the nodes' guess;
         needs ``shooting > 1``) with the terminal pitch at pi from the first stage.
     """
-    from ._hopping import keyframe_guess
 
     model = robots.tumbler(feet=True) if model is None else model
     env, contact = _env_contact()

@@ -79,16 +79,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import jax
-import jax.numpy as jnp
-from jax.scipy.special import logsumexp
 
-from ..errors import ProblemError
 from ..geometry.shapes import Capsule
 from ..model.builder import ModelBuilder
-from ..optimize.constraints import Constraint
-from ..optimize.costs import resolve
-from ._planar import DENSITY, SlipPower, capsule_inertia, longest_run, trajectory_contact_d
+from ..optimize.constraints import SlipPower, SwingClearance
+from ._planar import DENSITY, capsule_inertia, longest_run, trajectory_contact_d
 from ._planar import criterion as _entry
 
 # (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
@@ -176,63 +171,6 @@ def walker_contact(stiffness=4e4, damping=800.0, d_on=0.01, d_off=0.0, friction=
 # ---------------------------------------------------------------------------------------
 # The walking problem
 # ---------------------------------------------------------------------------------------
-def _contact_d(ctx, samples):
-    """(S, k) contact distances at the constraint-grid samples (recorded by the rollout,
-    else recomputed from the sampled states)."""
-    c = samples.get("contact")
-    if c is not None:
-        return c.d
-    from ..contact import contact_forces
-
-    p = ctx.problem
-    return jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
-
-
-class SwingClearance(Constraint):
-    """Every foot swings: for each group of robot geoms (``groups``: a list of lists of
-    geom names, e.g. ``[["foot_r_geom"], ["foot_l_geom"]]``), at some instant of the
-    constraint grid all the group's contact points are at least ``clearance`` (m, or a
-    problem-parameter name) above the obstacles. No schedule: the instant is not given.
-    Smooth: per group, ``tau_time logsumexp_s(c_s / tau_time)`` (a soft max over the
-    samples) of ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a soft min over the
-    group's points at sample ``s``); the soft min is at most ``tau_points ln k`` below the
-    true min, the soft max at most ``tau_time ln S`` above the true max. One inequality
-    per group: ``soft_clearance - clearance >= 0``."""
-
-    kind = "ineq"
-
-    def __init__(self, groups, clearance, tau_points=1e-3, tau_time=2e-3, stage=0, name="swing"):
-        self.groups = [[g] if isinstance(g, str) else list(g) for g in groups]
-        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
-        self.kind, self.stage, self.name = "ineq", int(stage), name
-
-    def check(self, problem):
-        from ..contact import contact_labels
-        from ..contact import Environment, ground
-
-        env = problem.env if problem.env is not None else Environment([ground()])
-        labels = contact_labels(problem.model, env)
-        self._idx = []
-        for g in self.groups:
-            pts = [i for i, lab in enumerate(labels) if lab[0] in g]
-            if not pts:
-                raise ProblemError(f"SwingClearance: no contact points on geoms {g}; geoms with contact points: "
-                                   f"{sorted({lab[0] for lab in labels})}")
-            self._idx.append(np.array(pts, int))
-
-    def values(self, ctx, end, samples):
-        d = _contact_d(ctx, samples)
-        out = []
-        for idx in self._idx:
-            c = -self.tau_points * logsumexp(-d[:, idx] / self.tau_points, axis=1)
-            out.append(self.tau_time * logsumexp(c / self.tau_time))
-        return jnp.stack(out) - resolve(self.clearance, ctx.params)
-
-    def describe(self):
-        return {"type": "SwingClearance", "groups": self.groups, "clearance": self.clearance,
-                "tau_points": self.tau_points, "tau_time": self.tau_time, "stage": self.stage}
-
-
 def foot_flat_ankle(pitch, hip, knee):
     """The ankle angle (rad) that keeps the foot level, given the base pitch and the hip
     and knee angles: the hinges turn about -y and the pitch about +y, so the foot's pitch

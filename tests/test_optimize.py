@@ -221,7 +221,7 @@ def test_sequence_compiles_later_segments_in_the_background(problem):
     other = examples.get("acrobot")(t_final=3.0, n_ctrl=14, dt=0.02)
     s = solve(MotionSequence([problem, other]), max_iter=2, continuation={"target": [np.pi]})
     assert len(s.segments) == 2
-    assert {k: f._cache_size() for k, f in other._compiled.items()} == {"fun_jac": 1, "trajectory": 1}
+    assert {k: other.compiled(k)._cache_size() for k in ("fun_jac", "trajectory")} == {"fun_jac": 1, "trajectory": 1}
 
 
 def test_problem_validation():
@@ -262,26 +262,6 @@ def test_trust_constr_swing_up(problem):
     assert s.info["method"] == "trust-constr" and s.cost == pytest.approx(154.29, rel=1e-3)
     with pytest.raises(cs.InputError, match="method must be one of"):
         solve(problem, method="newton")
-
-
-def test_variable_bounds_follow_joint_limits():
-    """Free control points are boxed by the active joints' position limits (a clamped
-    B-spline stays in the convex hull of its control points); unlimited joints are
-    unbounded."""
-    from cstorm.optimize.solve import variable_bounds
-    m = cs.robots.tumbler()
-    q0 = cs.robots.tumbler_standing_q()
-    p = MotionProblem(m, ["shoulder", "hip"], 1.0, 8, 0.05, q0)
-    lb, ub = variable_bounds(p)
-    nf = p.n_free
-    assert lb.shape == ub.shape == (p.n_vars,)
-    # layout order is model order: hip first, then shoulder
-    assert p.active == ("hip", "shoulder")
-    np.testing.assert_allclose(lb[:nf], -2.8)
-    np.testing.assert_allclose(ub[nf:], 3.0)
-    a = examples.get("acrobot")(**FAST)
-    lb, ub = variable_bounds(a)
-    assert np.all(np.isinf(lb)) and np.all(np.isinf(ub))
 
 
 def test_evaluate_records_the_constraint_grid_only(monkeypatch):

@@ -32,8 +32,7 @@ from .errors import InputError
 from .model.info import dof_names
 from .io.files import atomic_write, json_safe, write_json
 from .io.problemfile import load_problem_text
-from .optimize.solution import Solution, Status
-from .optimize.solve import _contact_dict
+from .optimize.solution import Solution, Status, contact_dict
 from .viz import animation as _anim
 from .viz import plots as _plots
 from .viz.motion import Motion
@@ -117,7 +116,7 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
         traj = dict(t=np.asarray(p.t), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"], ctrl=tr["ctrl"])
         if tr.get("contact") is not None:
             c = tr["contact"]
-            traj["contact"] = c if isinstance(c, dict) else _contact_dict(c)
+            traj["contact"] = c if isinstance(c, dict) else contact_dict(c)
         cost = viol = float("nan")
         if evaluate:
             f, ce, ci, _ = (np.asarray(a) for a in p.compiled("fun")(jnp.asarray(xk), data))

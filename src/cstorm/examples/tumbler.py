@@ -417,7 +417,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         p.record_grid_only = False
         if guess == "bridge":
             T_ = p.t_final
-            p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
+            p.x0 = p.initial_x(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
             p.node_guess = bridge_nodes(model, T_)
             p.solve_options["schedule"] = _plan((np.pi,))
     elif name == "roll":

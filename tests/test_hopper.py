@@ -105,7 +105,7 @@ def test_capsule_inertia_is_mujocos():
         m = mujoco.MjModel.from_xml_path(XML)
     for body, key in (("torso", "torso"), ("thigh", "thigh"), ("leg", "leg")):
         i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body)
-        mass, I = H.capsule_inertia(H.HOPPER[key]["radius"], H.HOPPER[key]["length"])
+        mass, I = cs.robots.capsule_inertia(H.HOPPER[key]["radius"], H.HOPPER[key]["length"])
         np.testing.assert_allclose(mass, m.body_mass[i], rtol=1e-14)
         np.testing.assert_allclose(I, m.body_inertia[i], rtol=1e-13)
 

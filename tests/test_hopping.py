@@ -17,7 +17,7 @@ import pytest
 
 import cstorm as cs
 from cstorm.examples._hopping import flight_time
-from cstorm.examples._planar import capsule_inertia, longest_run
+from cstorm.examples._planar import longest_run
 
 NAMES = ("hopper", "luxo")
 
@@ -96,14 +96,6 @@ def test_flight_time_and_longest_run():
     assert longest_run(t, flag) == pytest.approx((0.3, 0.2))
     d = np.where(flag[:, None], 0.05, 0.0) * np.ones((11, 3))
     assert flight_time(t, d, 0.01) == pytest.approx((0.3, 0.2))
-
-
-def test_capsule_inertia_mass_form():
-    """Given the mass instead of the density, the same capsule."""
-    m, I = capsule_inertia(0.02, 0.1, density=800.0)
-    m2, I2 = capsule_inertia(0.02, 0.1, mass=m)
-    assert m2 == pytest.approx(m, rel=1e-14)
-    np.testing.assert_allclose(I2, I, rtol=1e-13)
 
 
 def _solve_and_check(name):

@@ -5,6 +5,8 @@
 Each returns a `MotionProblem` (or `MotionSequence`) whose ``solve_options`` hold the
 solve plan (continuation, staging) that makes ``cs.solve(problem)`` converge.
 
+The robots of every example are in `robots` (``cs.robots``).
+
 Registration: every module of this package that defines ``EXAMPLES = {name: factory}``
 contributes its problems; modules are found with `pkgutil`, so adding an example is
 adding a module (no central list to edit).

@@ -20,7 +20,7 @@ from ..optimize.constraints import AtRest, FlightClearance, ForwardDistance, Pit
 from ..optimize.costs import LandingPenalty
 from ..optimize.guesses import keyframe_guess
 from ..optimize.problem import MotionProblem
-from ..optimize.solve import variable_bounds
+from ..optimize.bounds import variable_bounds
 from ..simulate import RolloutLayout
 from ._planar import criterion, hold_test, longest_run, trajectory_contact_d
 

@@ -1,7 +1,7 @@
-"""Pieces shared by the planar capsule robots of the examples (`hopper`, `walker`,
-`luxo`): MuJoCo's capsule inertia, contact distances read from a solution's trajectory,
-one success-criterion entry, the longest run of a condition over a time grid, the hold
-test of a motion that ends at rest, and a bound on the contacts' sliding power.
+"""Pieces shared by the examples on planar robots (`hopper`, `walker`, `luxo`,
+`tumbler`): contact distances read from a solution's trajectory, one success-criterion
+entry, the longest run of a condition over a time grid, and the hold test of a motion
+that ends at rest.
 
 Not an example itself (the leading underscore keeps it out of the registry).
 """
@@ -15,27 +15,7 @@ import numpy as np
 from ..errors import DivergenceError, ProblemError
 from ..simulate import simulate
 
-__all__ = ["DENSITY", "capsule_inertia", "trajectory_contact_d", "criterion", "longest_run", "hold_test"]
-
-DENSITY = 1000.0  # kg/m^3, MuJoCo's default geom density
-
-
-def capsule_inertia(radius, length, density=DENSITY, mass=None):
-    """Mass (kg) and principal inertias ``(I_perp, I_perp, I_axial)`` (kg m^2, about the
-    centre, axis along z) of a uniform solid capsule: a cylinder of ``length`` (m, the
-    axis segment) plus two hemispheres of ``radius`` (m). The density is ``density``
-    (kg/m^3; MuJoCo's ``inertiafromgeom``), or, with ``mass`` (kg) given, the density
-    that gives that mass."""
-    r, h = float(radius), float(length)
-    vc, vs = math.pi * r * r * h, 4.0 / 3.0 * math.pi * r ** 3  # cylinder, the two hemispheres
-    rho = float(density) if mass is None else float(mass) / (vc + vs)
-    mc, ms = rho * vc, rho * vs
-    # the two hemispheres about the capsule centre: each 83/320 m r^2 about its own CoM,
-    # which lies 3r/8 from its flat face, i.e. h/2 + 3r/8 from the centre
-    perp = mc * (3 * r * r + h * h) / 12.0 + ms * (2 * r * r / 5 + h * h / 4 + 3 * r * h / 8)
-    axial = mc * r * r / 2 + ms * 2 * r * r / 5
-    return mc + ms, (perp, perp, axial)
-
+__all__ = ["trajectory_contact_d", "criterion", "longest_run", "hold_test"]
 
 def trajectory_contact_d(tr, who="criteria"):
     """(N+1, k) signed contact distances (m) of a solution's trajectory dict ``tr`` (its

@@ -1,52 +1,5 @@
-"""The planar one-legged hopper of MuJoCo/Gymnasium (``Hopper-v5``'s ``hopper.xml``),
-rebuilt with `ModelBuilder` with the same numbers, and a hop-forward problem.
-
-Why a builder model and not ``cs.load_mjcf(hopper.xml)``: the problem must run from a
-plain install (core dependencies only; MuJoCo and Gymnasium are test extras).
-``tests/test_hopper.py`` loads Gymnasium's ``hopper.xml`` with MuJoCo and with
-``cs.load_mjcf`` and checks that this model's mass matrix, bias forces, forward dynamics
-and passive forces agree with MuJoCo's at random states (to ~1e-12).
-
-Model (`hopper_model`; every number is Gymnasium's unless said otherwise)
----------------------------------------------------------------------------
-Four capsules in a chain, torso - thigh - leg - foot, in the x-z plane, gravity 9.81
-m/s^2 along -z. Masses and inertias are MuJoCo's ``inertiafromgeom``: uniform density
-1000 kg/m^3 over each capsule (a cylinder plus two hemispheres, `capsule_inertia`).
-
-| link  | capsule radius | axis length (= 2 x half-length) | mass (kg) | axis        |
-|-------|----------------|----------------------------------|-----------|-------------|
-| torso | 0.05 m         | 0.40 m                           | 3.6652    | vertical    |
-| thigh | 0.05 m         | 0.45 m                           | 4.0579    | vertical    |
-| leg   | 0.04 m         | 0.50 m                           | 2.7814    | vertical    |
-| foot  | 0.06 m         | 0.39 m                           | 5.3156    | horizontal  |
-
-Total 15.820 kg. Principal inertias about the capsule centres (kg m^2): torso
-(0.069246, 0.069246, 0.004451), thigh (0.093299, 0.093299, 0.004941), leg (0.072303,
-0.072303, 0.002182), foot (0.103523, 0.103523, 0.009242) (the last entry about the
-capsule axis).
-
-Frames and joints at ``q = 0`` (standing straight, torso centre at ``root_z`` above the
-ground, world x forward; cstorm puts each link frame at its joint's anchor):
-
-- passive planar base on the torso centre: ``root_x`` (prismatic x), ``root_z``
-  (prismatic z), ``root_pitch`` (revolute about +y), MuJoCo's ``rootx, rootz, rooty``
-  (``q`` equals MuJoCo's ``qpos``: ``root_z`` is the torso centre's height, Gymnasium's
-  ``ref = 1.25``). No armature, damping or limits on the base.
-- ``thigh_joint``: torso -> thigh, at the torso's lower end (0, 0, -0.2) (the torso
-  capsule's end-sphere centre); thigh capsule centre 0.225 m below the joint.
-- ``leg_joint``: thigh -> leg, 0.45 m below the thigh joint; leg capsule centre 0.25 m
-  below it.
-- ``foot_joint`` (ankle): leg -> foot, 0.5 m below the leg joint (the leg capsule's
-  lower end-sphere centre); the foot capsule lies along x, centred 0.065 m ahead of the
-  ankle at ankle height: heel end-sphere centre at x = -0.13, toe at x = +0.26.
-- The three hinges turn about -y (MuJoCo ``axis="0 -1 0"``): a positive angle turns the
-  child's lower end forward (+x). Ranges: thigh [-150, 0] deg, leg [-150, 0] deg, foot
-  [-45, 45] deg (``q = 0`` is the upper limit of thigh and leg: straight). Armature 1
-  kg m^2 and viscous damping 1 N m s/rad on each (Gymnasium's ``<default>``; the motor
-  also supplies the damping torque). Effort limit 200 N m (motor ``gear = 200``,
-  ``ctrlrange = [-1, 1]``). No velocity limits (Gymnasium has none).
-- Standing at ``q = 0`` the ankle is 1.15 m below the torso centre and the foot capsule's
-  underside 1.21 m below it (Gymnasium starts the torso at 1.25 m, 4 cm up in the air).
+"""A hop-forward problem for the planar one-legged hopper of MuJoCo/Gymnasium
+(``Hopper-v5``), `cs.robots.hopper_model` (every number of the model is there).
 
 Contact (`hopper_contact`, not Gymnasium's soft constraints): cstorm's smooth penalty
 law on the two end spheres of every capsule against the ground (8 contact points).
@@ -88,68 +41,14 @@ Results and what the motion looks like: docs/examples.md.
 
 from __future__ import annotations
 
-import math
+import copy
 
 import numpy as np
 
-from ..geometry.shapes import Capsule
-from ..model.builder import ModelBuilder
-from ._planar import capsule_inertia
-
-# (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
-HOPPER = dict(
-    torso=dict(radius=0.05, length=0.40),
-    thigh=dict(radius=0.05, length=0.45),
-    leg=dict(radius=0.04, length=0.50),
-    foot=dict(radius=0.06, length=0.39),
-    foot_offset=0.065,  # foot capsule centre ahead of the ankle, m
-    thigh_joint=dict(lower=-math.radians(150), upper=0.0),
-    leg_joint=dict(lower=-math.radians(150), upper=0.0),
-    foot_joint=dict(lower=-math.radians(45), upper=math.radians(45)),
-    effort=200.0,  # N m: gear 200 x ctrlrange 1
-    armature=1.0,  # kg m^2
-    damping=1.0,  # N m s/rad
-)
-
-
-def hopper_model(armature: float | None = None, damping: float | None = None, effort: float | None = None):
-    """The Gymnasium hopper (see the module docstring for every number). Keyword
-    arguments override Gymnasium's armature (kg m^2), damping (N m s/rad) and effort
-    limit (N m) of the three hinges. Joints: ``root_x, root_z, root_pitch, thigh_joint,
-    leg_joint, foot_joint``; geoms ``torso_geom, thigh_geom, leg_geom, foot_geom``."""
-    P = HOPPER
-    arm = P["armature"] if armature is None else float(armature)
-    damp = P["damping"] if damping is None else float(damping)
-    eff = P["effort"] if effort is None else float(effort)
-    b = ModelBuilder("hopper", source="<cstorm.examples.hopper.hopper_model>")
-    hinge = dict(axis=(0.0, -1.0, 0.0), armature=arm, damping=damp, effort=eff)
-    t, th, lg, ft = P["torso"], P["thigh"], P["leg"], P["foot"]
-
-    m, I = capsule_inertia(t["radius"], t["length"])
-    b.add_link("torso", mass=m, inertia=I)
-    b.add_geom("torso", Capsule(t["radius"], t["length"]), name="torso_geom")
-
-    m, I = capsule_inertia(th["radius"], th["length"])
-    c = (0.0, 0.0, -th["length"] / 2)
-    b.add_link("thigh", mass=m, com=c, inertia=I)
-    b.add_joint("thigh_joint", "revolute", "torso", "thigh", xyz=(0.0, 0.0, -t["length"] / 2), **hinge,
-                **P["thigh_joint"])
-    b.add_geom("thigh", Capsule(th["radius"], th["length"]), xyz=c, name="thigh_geom")
-
-    m, I = capsule_inertia(lg["radius"], lg["length"])
-    c = (0.0, 0.0, -lg["length"] / 2)
-    b.add_link("leg", mass=m, com=c, inertia=I)
-    b.add_joint("leg_joint", "revolute", "thigh", "leg", xyz=(0.0, 0.0, -th["length"]), **hinge, **P["leg_joint"])
-    b.add_geom("leg", Capsule(lg["radius"], lg["length"]), xyz=c, name="leg_geom")
-
-    m, (Ip, _, Ia) = capsule_inertia(ft["radius"], ft["length"])
-    c = (P["foot_offset"], 0.0, 0.0)
-    b.add_link("foot", mass=m, com=c, inertia=(Ia, Ip, Ip))  # capsule axis along x
-    b.add_joint("foot_joint", "revolute", "leg", "foot", xyz=(0.0, 0.0, -lg["length"]), **hinge, **P["foot_joint"])
-    b.add_geom("foot", Capsule(ft["radius"], ft["length"]), xyz=c, rpy=(0.0, -math.pi / 2, 0.0), name="foot_geom")
-    b.add_frame("heel", "foot", xyz=(P["foot_offset"] - ft["length"] / 2, 0.0, -ft["radius"]))
-    b.add_frame("toe", "foot", xyz=(P["foot_offset"] + ft["length"] / 2, 0.0, -ft["radius"]))
-    return b.build(floating_base="planar")
+from ..contact import ContactParams
+from ..optimize.constraints import SlipPower
+from ._hopping import hop_criteria, hop_problem
+from .robots import HOPPER, hopper_model
 
 
 def standing_height():
@@ -164,8 +63,6 @@ ACTIVE = ("thigh_joint", "leg_joint", "foot_joint")
 
 def hopper_contact(stiffness=2.5e4, damping=2000.0, d_on=0.01, d_off=0.0, friction=0.9, v_max=0.3):
     """The hopper's `ContactParams` (see the module docstring for the choice)."""
-    from ..contact import ContactParams
-
     return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
                          v_max=v_max)
 
@@ -261,9 +158,6 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     starts the node states on the guess's own rollout. ``ramp``: the landing ramp
     (default `RAMP`). ``landing``: further `hop_problem` arguments.
     """
-    from ._hopping import hop_problem
-    from ..optimize.constraints import SlipPower
-
     model = hopper_model(armature=armature)
     contact = hopper_contact() if contact is None else contact
     q_rest = np.array([0.0, REST_Z, REST_PITCH, 0.0, 0.0, 0.0])
@@ -311,10 +205,6 @@ def fast_variant(problem=None):
 
     Returns the `MotionProblem` with the plan in ``solve_options`` and its own
     ``success_criteria``."""
-    import copy
-
-    from ._hopping import hop_criteria
-
     base = hopper() if problem is None else problem
     if base.name != "hopper":
         raise ValueError(f"hopper.fast_variant: expects a hopper() problem, got {base.name!r}")

@@ -1,38 +1,7 @@
 """A planar Luxo lamp (the desk lamp of Pixar's "Luxo Jr.", the draft's introduction) and
 a hop-forward problem.
 
-Model (`luxo_model`; numbers chosen for a small desk lamp, 1.35 kg in all)
----------------------------------------------------------------------------
-Four capsules in a chain, foot - lower arm - upper arm - head, in the x-z plane; gravity
-9.81 m/s^2 along -z. Links are uniform solid capsules: CoM at the capsule centre,
-inertia of a cylinder plus two hemispheres of the link's mass (`capsule_inertia` with
-the density that gives the stated mass).
-
-| link      | capsule radius | axis length | mass   | notes                                     |
-|-----------|----------------|-------------|--------|-------------------------------------------|
-| foot      | 0.020 m        | 0.12 m      | 0.60 kg| weighted base, axis along x; 0.16 m long  |
-| lower_arm | 0.012 m        | 0.20 m      | 0.20 kg| axis along its z, from the base joint up  |
-| upper_arm | 0.012 m        | 0.20 m      | 0.20 kg| from the elbow up                         |
-| head      | 0.040 m        | 0.08 m      | 0.35 kg| lamp shade, axis along its x (forward)     |
-
-Frames and joints (cstorm puts each link frame at its joint's anchor; every hinge turns
-about +y, so a positive angle tips the child's far end forward, +x, or down for a link
-pointing forward):
-
-- passive planar base on the foot's centre: ``root_x``, ``root_z`` (the foot axis'
-  height), ``root_pitch``; no armature, damping or limits.
-- ``base`` (foot -> lower arm) on the foot's axis at its centre; the lower arm points up
-  (+z) at 0. Range [-70, 70] deg.
-- ``elbow`` (lower -> upper arm) at the lower arm's top (0.20 m); the upper arm continues
-  up at 0. Range [-150, 30] deg (folds backwards, the Luxo "Z").
-- ``neck`` (upper arm -> head) at the upper arm's top (0.20 m); the shade's axis points
-  forward (+x) at 0, its capsule centred 0.06 m ahead of the neck. Range [-60, 120] deg.
-- Motors: effort limits ``base`` 6 N m, ``elbow`` 6 N m, ``neck`` 2 N m (hobby smart
-  servos of the Dynamixel MX-64 / MX-28 class); velocity limits 12 rad/s (not enforced
-  by the default problem); armature 1e-3 kg m^2 (geared rotor); no damping.
-- Rest posture `REST_ACTIVE` (rad): ``base`` 0.5 (lower arm leans forward 29 deg),
-  ``elbow`` -1.0 (upper arm leans back 29 deg), ``neck`` 1.0 (the shade points forward
-  and 29 deg down): the CoM 2.8 cm ahead of the foot centre, the neck 0.37 m up.
+Model: `cs.robots.luxo_model` (every number is there).
 
 Contact (`luxo_contact`): the smooth penalty law on both end spheres of every capsule
 against the ground. DESIGN.md's tumbler values (k = 5e3 N/m, c = 100 N s/m, d_on = 0.01 m
@@ -64,66 +33,19 @@ Jacobians can make it fail. Results: docs/examples.md.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ..geometry.shapes import Capsule
-from ..model.builder import ModelBuilder
-from ._planar import capsule_inertia
+from ..contact import ContactParams
+from ._hopping import hop_problem
+from .robots import LUXO, luxo_model
 
-LUXO = dict(
-    foot=dict(radius=0.020, length=0.12, mass=0.60),
-    lower_arm=dict(radius=0.012, length=0.20, mass=0.20),
-    upper_arm=dict(radius=0.012, length=0.20, mass=0.20),
-    head=dict(radius=0.040, length=0.08, mass=0.35, offset=0.06),
-    base=dict(lower=math.radians(-70), upper=math.radians(70), effort=6.0, velocity=12.0),
-    elbow=dict(lower=math.radians(-150), upper=math.radians(30), effort=6.0, velocity=12.0),
-    neck=dict(lower=math.radians(-60), upper=math.radians(120), effort=2.0, velocity=12.0),
-    armature=1e-3,
-)
 
 ACTIVE = ("base", "elbow", "neck")
 REST_ACTIVE = (0.5, -1.0, 1.0)
 
 
-def luxo_model():
-    """The planar Luxo lamp (see the module docstring for every number). Joints
-    ``root_x, root_z, root_pitch, base, elbow, neck``; geoms ``foot, lower_arm,
-    upper_arm, head``."""
-    P = LUXO
-    b = ModelBuilder("luxo", source="<cstorm.examples.luxo.luxo_model>")
-    hinge = lambda name: dict(axis=(0.0, 1.0, 0.0), armature=P["armature"], **P[name])
-    f, la, ua, hd = P["foot"], P["lower_arm"], P["upper_arm"], P["head"]
-
-    _, (Ip, _, Ia) = capsule_inertia(f["radius"], f["length"], mass=f["mass"])
-    b.add_link("foot", mass=f["mass"], inertia=(Ia, Ip, Ip))  # axis along x
-    b.add_geom("foot", Capsule(f["radius"], f["length"]), rpy=(0.0, math.pi / 2, 0.0), name="foot")
-    b.add_frame("heel", "foot", xyz=(-f["length"] / 2, 0.0, -f["radius"]))
-    b.add_frame("toe", "foot", xyz=(f["length"] / 2, 0.0, -f["radius"]))
-
-    c = (0.0, 0.0, la["length"] / 2)
-    b.add_link("lower_arm", mass=la["mass"], com=c, inertia=capsule_inertia(la["radius"], la["length"], mass=la["mass"])[1])
-    b.add_joint("base", "revolute", "foot", "lower_arm", xyz=(0.0, 0.0, 0.0), **hinge("base"))
-    b.add_geom("lower_arm", Capsule(la["radius"], la["length"]), xyz=c, name="lower_arm")
-
-    c = (0.0, 0.0, ua["length"] / 2)
-    b.add_link("upper_arm", mass=ua["mass"], com=c, inertia=capsule_inertia(ua["radius"], ua["length"], mass=ua["mass"])[1])
-    b.add_joint("elbow", "revolute", "lower_arm", "upper_arm", xyz=(0.0, 0.0, la["length"]), **hinge("elbow"))
-    b.add_geom("upper_arm", Capsule(ua["radius"], ua["length"]), xyz=c, name="upper_arm")
-
-    c = (hd["offset"], 0.0, 0.0)
-    _, (Ip, _, Ia) = capsule_inertia(hd["radius"], hd["length"], mass=hd["mass"])
-    b.add_link("head", mass=hd["mass"], com=c, inertia=(Ia, Ip, Ip))  # axis along x
-    b.add_joint("neck", "revolute", "upper_arm", "head", xyz=(0.0, 0.0, ua["length"]), **hinge("neck"))
-    b.add_geom("head", Capsule(hd["radius"], hd["length"]), xyz=c, rpy=(0.0, math.pi / 2, 0.0), name="head")
-    return b.build(floating_base="planar")
-
-
 def luxo_contact(stiffness=5e3, damping=50.0, d_on=0.005, d_off=0.0, friction=0.8, v_max=0.3):
     """The lamp's `ContactParams` (see the module docstring for the choice)."""
-    from ..contact import ContactParams
-
     return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
                          v_max=v_max)
 
@@ -171,8 +93,6 @@ def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, 
     `_hopping.DENSE_RAMP` after the landing ramp (without it only the constraint grid's
     samples, and the landing needs 1.11x the elbow's limit between two of them).
     Initial guess: `KEYFRAMES` (posture level)."""
-    from ._hopping import hop_problem
-
     model = luxo_model()
     contact = luxo_contact() if contact is None else contact
     q_rest = np.array([0.0, REST_Z, REST_PITCH, *REST_ACTIVE])

@@ -2,7 +2,7 @@
 `MotionSequence` of four segments, each solved from the state where the previous one
 ended, each minimizing the integral of squared active torque.
 
-Robot: `cstorm.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m /
+Robot: `cs.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m /
 1.5 kg, arms 0.25 m / 0.5 kg, capsule radii 0.03 / 0.04 / 0.025 m; hip and shoulder
 active, limits +-2.8 / +-3.0 rad, 12 / 8 N m; passive planar base ``root_x, root_z,
 root_pitch`` on the torso; a foot and a palm capsule across the ends of the legs and
@@ -86,16 +86,16 @@ from __future__ import annotations
 import numpy as np
 import jax.numpy as jnp
 
-from .. import robots
-from ..contact import ContactParams
-from ..contact import Environment, ground
-from ..optimize import costs as C
-from ..optimize import constraints as K
-from ..optimize.problem import MotionProblem
+from ..analysis.criteria import evaluate_criteria
+from ..contact import ContactParams, Environment, ground
+from ..optimize import constraints as K, costs as C
 from ..optimize.constraints import ScaledTorqueLimits
 from ..optimize.guesses import keyframe_guess
+from ..optimize.problem import MotionProblem
 from ..optimize.sequence import MotionSequence
-from ..analysis.criteria import evaluate_criteria
+from . import robots
+from ._planar import criterion, hold_test
+
 
 __all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
 
@@ -491,8 +491,6 @@ class _RestCriteria:
         self.spec, self.problem = spec, problem
 
     def __call__(self, sol):
-        from ._planar import criterion, hold_test
-
         out = evaluate_criteria(self.spec, self.problem.model, sol)
         dev, _, vend = hold_test(self.problem, sol, HOLD["duration"])
         out["holds still"] = criterion(dev, HOLD["pitch_tol"], dev <= HOLD["pitch_tol"])

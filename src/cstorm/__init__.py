@@ -5,7 +5,7 @@ float64: enable it with ``jax.config.update("jax_enable_x64", True)`` before use
 and the test-suite do; cstorm never changes global JAX flags on import).
 """
 
-__version__ = "0.1.0"
+from .version import __version__
 
 from .errors import CstormError, ModelError, ModelWarning, ShapeError, InputError, DivergenceError, ProblemError
 from .geometry.shapes import Sphere, Capsule, Box, Cylinder, Plane, ConvexMesh

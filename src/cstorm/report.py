@@ -35,6 +35,7 @@ from .io.problemfile import load_problem_text
 from .optimize.solution import Solution, Status, contact_dict
 from .viz import animation as _anim
 from .viz import plots as _plots
+from .version import __version__
 from .viz.motion import Motion
 
 __all__ = ["Criterion", "evaluate_criteria", "fidelity", "make_summary", "write_csv", "write_json", "write_outputs",
@@ -169,7 +170,6 @@ def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_
     all are, else None; ``dt_limit``: the smallest; ``solution_ok`` likewise over the
     entries' ``"solution"`` checks, when ``cstorm solve`` added them). It does not enter
     ``success``."""
-    from . import __version__
 
     segs, sols = problem_segments(problem), segment_solutions(solution)
     if criteria is None:

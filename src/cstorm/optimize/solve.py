@@ -35,7 +35,7 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from .. import __version__
+from ..version import __version__
 from ..errors import DivergenceError, InputError, ProblemError
 from ..mapguard import relieve_map_pressure
 from ..simulate import check_divergence

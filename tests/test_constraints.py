@@ -86,7 +86,7 @@ def test_torque_limits_dense_bound_every_step():
     grid, dense = r[:n], r[n:]
     tau = np.asarray(p.trajectory(x, p.data())["tau"])[:, list(p.layout.va_idx)]
     worst = 1.0 - np.max(np.abs(tau)) / lim  # the true margin on the worst step
-    Wn = terms[1]._windows
+    Wn = window_index(p.sample_idx, p.n_steps)
     L = Wn.shape[1]
     assert dense.min() <= worst + 1e-12 and dense.min() >= worst - np.log(L) / 400.0
     assert np.all(dense <= grid + 1e-12)  # never less strict than the samples
@@ -106,16 +106,23 @@ def test_swing_and_flight_clearance_are_soft_clearance_of_their_points():
     """`SwingClearance`: one value per geom group, `soft_clearance` of that group's columns
     minus the clearance; `FlightClearance`: ``scale`` times the same over every point."""
     rng = np.random.default_rng(1)
-    d = jnp.asarray(rng.uniform(-0.01, 0.1, size=(30, 4)))
-    samples = dict(contact=SimpleNamespace(d=d))
     ctx = SimpleNamespace(params={"c": 0.02}, problem=SimpleNamespace(env=object()))
-    sw = SwingClearance([["a"], ["b"]], "c")
-    sw._idx = [np.array([0, 1]), np.array([2, 3])]  # what check() finds for geoms a and b
-    want = [float(soft_clearance(d[:, :2], 1e-3, 2e-3)) - 0.02, float(soft_clearance(d[:, 2:], 1e-3, 2e-3)) - 0.02]
+    model, env = robots.tumbler(), Environment([ground()])
+    labels = contact_labels(model, env)  # (geom, ...) per contact point
+    groups = [["legs"], ["arms", "torso"]]
+    cols = [[i for i, lab in enumerate(labels) if lab[0] in g] for g in groups]
+    d = jnp.asarray(rng.uniform(-0.01, 0.1, size=(30, len(labels))))
+    samples = dict(contact=SimpleNamespace(d=d))
+    sw = SwingClearance(groups, "c")
+    sw.check(SimpleNamespace(model=model, env=None))  # without env: the points against the ground
+    want = [float(soft_clearance(d[:, c], 1e-3, 2e-3)) - 0.02 for c in cols]
     np.testing.assert_allclose(np.asarray(sw.values(ctx, None, samples)), want, rtol=0, atol=1e-15)
     fl = FlightClearance("c")
     np.testing.assert_allclose(np.asarray(fl.values(ctx, None, samples)),
                                [100.0 * (float(soft_clearance(d, 1e-3, 2e-3)) - 0.02)], rtol=1e-14)
+    assert all(cols)  # both groups have contact points
+    with pytest.raises(ProblemError, match="no contact points on geoms"):
+        SwingClearance([["nope"]], "c").check(SimpleNamespace(model=model, env=env))
     with pytest.raises(ProblemError, match="no environment"):
         fl.values(SimpleNamespace(params={"c": 0.02}, problem=SimpleNamespace(env=None)), None, samples)
 

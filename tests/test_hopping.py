@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import cstorm as cs
-from cstorm.examples._hopping import flight_time
-from cstorm.examples._planar import longest_run
+from cstorm.examples.hopping import flight_time
+from cstorm.examples.planar import longest_run
 
 NAMES = ("hopper", "luxo")
 
@@ -159,26 +159,12 @@ def test_hopper_full_solve_meets_criteria():
     assert {"holds_still_pitch", "holds_still_position", "still_after_hold", "torque_limits"} <= set(crit)
 
 
-def test_first_step_scales_the_auto_objective_scale():
-    """``solve_options["first_step"]`` (used by the hopping problems) scales SLSQP's
-    first step: the auto objective scale is ``first_step / |grad f|_inf``."""
-    from cstorm.optimize.solve import _objective_scale
-
-    class Ev:
-        def at(self, x):
-            return (0.0, None, None, False, np.array([0.5, -4.0]))
-
-    assert _objective_scale("auto", Ev(), None) == pytest.approx(0.25)
-    assert _objective_scale("auto", Ev(), None, 0.1) == pytest.approx(0.025)
-    assert _objective_scale(None, Ev(), None, 0.1) == 1.0
-
-
 def test_hold_test_at_the_standing_rest(problem):
-    """`_planar.hold_test` from the stored standing equilibrium at rest: the base does not
+    """`planar.hold_test` from the stored standing equilibrium at rest: the base does not
     move (< 1e-6 rad, m) and stays still."""
     from types import SimpleNamespace
 
-    from cstorm.examples._planar import hold_test
+    from cstorm.examples.planar import hold_test
 
     q0 = np.asarray(problem.q0)
     sol = SimpleNamespace(trajectory=dict(q=q0[None], v=np.zeros((1, problem.model.nv))))

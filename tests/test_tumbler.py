@@ -44,7 +44,7 @@ def test_nominal_postures_are_at_rest(model, posture):
     """Held still, the start posture (on the foot) and the handstand (on the palm) stay
     put: they are statically stable rest states of the contact model at the height the
     example computes (no drop, no drift)."""
-    env, contact = T._env_contact()
+    env, contact = T.env_contact()
     q0 = getattr(T, posture)(model)
     tr = cs.simulate.simulate(model, q0, t_final=0.5, dt=4e-3, active=("hip", "shoulder"), env=env, contact=contact)
     q, v = np.asarray(tr.q), np.asarray(tr.v)
@@ -192,7 +192,7 @@ def test_bridge_guess_keeps_feet_then_hands_on_the_floor(model):
     the planted feet, then about the planted hands, so the supporting contact points stay
     at the resting sink (the guess is geometrically contact-consistent); it starts at the
     start posture and ends at the nominal handstand; it needs ``shooting > 1``."""
-    env, contact = T._env_contact()
+    env, contact = T.env_contact()
     p = T.tumbler_segment("handstand", model=model, shooting=10, guess="bridge", t_final=2.0, n_ctrl=12)
     assert p.shooting == 10 and p.node_guess is not None and len(p.solve_options["schedule"]) == 1 + len(T.REST_RAMP)
     labels = cs.contact_labels(model, env)

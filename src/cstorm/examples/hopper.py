@@ -47,7 +47,7 @@ import numpy as np
 
 from ..contact import ContactParams
 from ..optimize.constraints import SlipPower
-from ._hopping import hop_criteria, hop_problem
+from .hopping import hop_criteria, hop_problem
 from .robots import HOPPER, hopper_model
 
 
@@ -68,7 +68,7 @@ def hopper_contact(stiffness=2.5e4, damping=2000.0, d_on=0.01, d_off=0.0, fricti
 
 
 # Standing rest state with the default contact (q = 0 posture, v = 0): the equilibrium of
-# the passive base computed by `_hopping.standing_equilibrium` (|a_base| < 1e-12 there;
+# the passive base computed by `hopping.standing_equilibrium` (|a_base| < 1e-12 there;
 # tests/test_hopping.py re-checks the force balance). The foot's end spheres rest ~4.4 mm above the
 # ground; the torso tilts back by 0.15 deg (the heel carries 62 % of the weight).
 REST_Z = 1.2143910383975463
@@ -92,7 +92,7 @@ KEYFRAMES = (
 )
 
 
-#: the hopper's landing ramp (see `_hopping.hop_problem`): ``(fraction of the distance,
+#: the hopper's landing ramp (see `hopping.hop_problem`): ``(fraction of the distance,
 #: base velocity tolerance m/s and rad/s, base acceleration tolerance m/s^2 and rad/s^2,
 #: terminal height (m) and pitch (rad) tolerance)``. The distance goes to 100 % at 1 cm,
 #: then the tolerances tighten by about 1.4x per stage (halving them in one stage made
@@ -114,7 +114,7 @@ END_POSTURE_TOL = 0.03
 #: after the landing ramp (the sampled plan needs 1.67x at the landing, on the ankle)
 DENSE_RAMP = (1.6, 1.4, 1.25, 1.1, 1.0)
 
-#: the hold test of the criteria (`_planar.hold_test`): 1 s more with the joints locked,
+#: the hold test of the criteria (`planar.hold_test`): 1 s more with the joints locked,
 #: the base stays within 0.01 rad and 2 mm of where it ended and is still (< 1e-2 m/s)
 HOLD = dict(duration=1.0, pitch_tol=0.01, pos_tol=0.002, v_tol=1e-2)
 
@@ -141,7 +141,7 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     the last stage of ``ramp``, height and pitch within 3 mm / 3 mrad of the standing
     equilibrium), ``root_x`` at least ``distance`` ahead.
 
-    The problem is `_hopping.hop_problem` (costs, constraints, variable bounds, solve plan
+    The problem is `hopping.hop_problem` (costs, constraints, variable bounds, solve plan
     and success criteria are documented there) with ``rest_accel=True``: cost ``integral
     1/2 |tau|^2 dt`` over the three motors (N^2 m^2 s) plus the landing penalty
     (``w_land``, N^2 m^2 s per m^2) of the first stages; a flight phase with every contact

@@ -47,7 +47,7 @@ first as a terminal penalty ``w_land/2 (|z - z0|^2 + |pitch - pitch0|^2 + |v_bas
 with ``w_land`` ramped 1, 10, 100 (constraint level 0: flight, pitch, limits), then
 the landing constraints (level 1) at ``qtol = 5 mm/rad, vtol = 1 cm/s``, then ``1e-3``.
 
-**Status: not yet solved.** The hopper's formulation (`_hopping.hop_problem` on this
+**Status: not yet solved.** The hopper's formulation (`hopping.hop_problem` on this
 model: the crouch of ``crouch_angles(0.5)`` as ``q_rest``, keyframes from `GUESS`,
 distance 0, 1.0 s, RK4 at 4 ms, 16 control points, 5 shooting intervals, clearance 2 cm,
 ``max_pitch`` 0.5, the hopper's `RAMP`, every-step torque limits) converges to a 0.35 s

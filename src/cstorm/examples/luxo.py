@@ -16,13 +16,13 @@ With 0.3 the limit is 2.8 ms and the plan runs at 2 ms).
 
 Problem (`luxo`)
 ----------------
-`_hopping.hop_problem`: start at rest in `REST_ACTIVE` at the contact equilibrium, hop
+`hopping.hop_problem`: start at rest in `REST_ACTIVE` at the contact equilibrium, hop
 forward at least one foot length (0.16 m, end to end), with a flight phase (every contact
 point 1 cm up at some instant, not scheduled), land at rest in the same posture; cost
 ``integral 1/2 |tau|^2 dt``; 1.0 s, RK4 at 2 ms, 14 control points per joint (24
 variables), SLSQP along the default solve plan (10 stages, see `hop_problem`),
 ``first_step = 0.1``; then the motor limits on every integration step (``dense_torque``,
-`_hopping.DENSE_RAMP`: 1.25x, 1.1x, 1x the limits at the 0.5 mm landing tolerance) and the
+`hopping.DENSE_RAMP`: 1.25x, 1.1x, 1x the limits at the 0.5 mm landing tolerance) and the
 final 1e-6 stage, 14 stages in all. Initial guess: `KEYFRAMES` (posture level). Without
 the every-step limits (``dense_torque=False``) the limits hold only at samples, and at
 the landing the elbow needs more than its 6 N m between two of them.
@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contact import ContactParams
-from ._hopping import hop_problem
+from .hopping import hop_problem
 from .robots import LUXO, luxo_model
 
 
@@ -51,7 +51,7 @@ def luxo_contact(stiffness=5e3, damping=50.0, d_on=0.005, d_off=0.0, friction=0.
 
 
 # Standing rest state with the default contact (`REST_ACTIVE` posture, v = 0): the
-# equilibrium of the passive base computed by `_hopping.standing_equilibrium` (|a_base| <
+# equilibrium of the passive base computed by `hopping.standing_equilibrium` (|a_base| <
 # 1e-13 there; tests/test_hopping.py re-checks the force balance). The foot's end spheres rest 2.0 and 3.0
 # mm above the ground (d_on = 5 mm); the foot tilts forward by 0.49 deg.
 REST_Z = 0.02250410464276732
@@ -84,13 +84,13 @@ def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, 
     Robot: `luxo_model` with `luxo_contact` on every capsule against flat ground; active
     ``base, elbow, neck`` (quintic B-splines, ``n_ctrl`` control points each), passive
     planar base. Start: `REST_ACTIVE` at rest, base at the contact equilibrium
-    (`REST_Z`, `REST_PITCH`). The problem is `_hopping.hop_problem` (costs, constraints,
+    (`REST_Z`, `REST_PITCH`). The problem is `hopping.hop_problem` (costs, constraints,
     solve plan and success criteria are documented there): cost ``integral 1/2 |tau|^2
     dt`` (N^2 m^2 s) plus the landing penalty of the first stages; a flight phase with
     every contact point at least ``clearance`` m up at some instant; the base pitch
     within ``max_pitch`` rad of its rest value; the end at rest in the rest pose; with
     ``dense_torque`` (default) the motor limits on every integration step, tightened along
-    `_hopping.DENSE_RAMP` after the landing ramp (without it only the constraint grid's
+    `hopping.DENSE_RAMP` after the landing ramp (without it only the constraint grid's
     samples, and the landing needs 1.11x the elbow's limit between two of them).
     Initial guess: `KEYFRAMES` (posture level)."""
     model = luxo_model()

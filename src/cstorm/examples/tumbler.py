@@ -94,10 +94,11 @@ from ..optimize.guesses import keyframe_guess
 from ..optimize.problem import MotionProblem
 from ..optimize.sequence import MotionSequence
 from . import robots
-from ._planar import criterion, hold_test
+from .planar import criterion, hold_test
 
 
-__all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
+__all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q",
+           "env_contact"]
 
 #: smooth contact parameters (see the module docstring)
 CONTACT = dict(stiffness=5e3, damping=100.0, d_on=0.01, d_off=0.0, friction=0.8, v_max=0.1, eps=0.01)
@@ -146,7 +147,8 @@ def handstand_q(model):
     return np.array([0.0, z, np.pi, 0.0, 0.0])
 
 
-def _env_contact():
+def env_contact():
+    """The tumbler's world: flat ground and its `ContactParams` (`CONTACT`)."""
     return Environment([ground()]), ContactParams(**CONTACT)
 
 
@@ -376,7 +378,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
     """
 
     model = robots.tumbler(feet=True) if model is None else model
-    env, contact = _env_contact()
+    env, contact = env_contact()
     # the handstand's contact derivatives by plain autodiff: its plan was verified with
     # them. The analytic rule (the default, and the other segments') gives the same
     # Jacobians to 1e-14, yet SLSQP's path through the handstand's plan splits at its

@@ -33,7 +33,7 @@ from ..optimize import constraints, costs
 from ..optimize.bounds import variable_bounds
 from ..optimize.constraints import SlipPower, SwingClearance
 from ..optimize.problem import MotionProblem
-from ._planar import criterion as _entry, longest_run, trajectory_contact_d
+from .planar import criterion as _entry, longest_run, trajectory_contact_d
 from .robots import WALKER, walker_model
 
 

@@ -320,7 +320,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
         if _rest[2] and k == 0:  # initial guess diverges
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
-        ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
+        ev.fscale = resolve_objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
         ev.bounds = stage_bounds(problem, x, st["extra"].get("trust_region"))
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
@@ -460,8 +460,10 @@ def _midpoint(a, b):
     return {key: (float(v) if v.ndim == 0 else v.tolist()) for key, v in mid.items()} if moved else None
 
 
-def _objective_scale(spec, ev, x, first_step=1.0):
-    """The factor applied to the objective seen by the solver. ``"auto"``: ``first_step /
+def resolve_objective_scale(spec, ev, x, first_step=1.0):
+    """The factor applied to the objective seen by the solver, from `solve`'s
+    ``objective_scale`` ``spec`` and the stage's evaluator ``ev`` at its start ``x``
+    (n_vars,). ``"auto"``: ``first_step /
     |grad f(x_start)|_inf`` (so the first quasi-Newton step, taken with an identity
     Hessian, moves no control point by more than about ``first_step`` rad or m because of
     the cost; a problem sets ``solve_options["first_step"]``, default 1, where a radian

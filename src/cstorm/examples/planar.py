@@ -3,7 +3,7 @@
 entry, the longest run of a condition over a time grid, and the hold test of a motion
 that ends at rest.
 
-Not an example itself (the leading underscore keeps it out of the registry).
+Not an example itself: it registers no problem (no ``EXAMPLES``).
 """
 
 from __future__ import annotations

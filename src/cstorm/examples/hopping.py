@@ -2,7 +2,7 @@
 equilibrium, the hop-forward-and-land problem and its success criteria computed from a
 `Solution`. Its terms (`FlightClearance`, `AtRest`, ...) are `cstorm.optimize`'s.
 
-Not an example itself (the leading underscore keeps it out of the registry).
+Not an example itself: it registers no problem (no ``EXAMPLES``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from ..optimize.guesses import keyframe_guess
 from ..optimize.problem import MotionProblem
 from ..optimize.bounds import variable_bounds
 from ..simulate import RolloutLayout
-from ._planar import criterion, hold_test, longest_run, trajectory_contact_d
+from .planar import criterion, hold_test, longest_run, trajectory_contact_d
 
 __all__ = ["standing_equilibrium", "hop_criteria", "flight_time", "hop_problem"]
 
@@ -85,7 +85,7 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
       integration step (not only at the constraint's samples) <= 1 (+1e-6): the motors can
       deliver the motion;
     - with ``hold`` (a dict ``duration`` s, ``pitch_tol`` rad, ``pos_tol`` m, ``v_tol``
-      m/s and rad/s): `_planar.hold_test`, the robot kept ``duration`` s more with its
+      m/s and rad/s): `planar.hold_test`, the robot kept ``duration`` s more with its
       joints locked stays put: ``holds_still_pitch``, ``holds_still_position`` (the
       largest deviations from the final pose) and ``still_after_hold`` (the base speed at
       the end of the hold).

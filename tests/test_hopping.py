@@ -48,9 +48,9 @@ def test_problem_structure(problem):
     m = _module(problem.name)
     assert problem.model.joint_names[:3] == ("root_x", "root_z", "root_pitch")
     assert problem.active == m.ACTIVE
-    # the torque limits on every step form a third level (default dense_torque)
-    assert problem.n_levels == 3
     assert callable(problem.success_criteria)
+    # the plan ends with the real problem: every constraint level, the full distance, the
+    # motor limits unrelaxed on every step
     sched = problem.solve_options["schedule"]
     assert sched[-1]["level"] == problem.n_levels - 1
     assert sched[-1]["params"]["distance"] == pytest.approx(problem.params["distance"])

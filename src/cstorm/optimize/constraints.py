@@ -688,6 +688,14 @@ class AtRest(Constraint):
         return d
 
 
+def _q_start(problem, joint, who):
+    """The first configuration index of ``joint``; `ProblemError` (prefixed ``who``) if the
+    model has no such joint."""
+    if joint not in problem.model.joint_names:
+        raise ProblemError(f"{who}: no joint named {joint!r}")
+    return problem.model.joint_q(joint).start
+
+
 class ForwardDistance(Constraint):
     """The motion covers a distance: ``scale (q_j(T) - q_j(0) - distance) >= 0`` for the
     prismatic base joint ``joint`` (default ``root_x``; ``distance`` in m, a
@@ -702,9 +710,7 @@ class ForwardDistance(Constraint):
         self.stage, self.name = int(stage), name
 
     def check(self, problem):
-        if self.joint not in problem.model.joint_names:
-            raise ProblemError(f"ForwardDistance: no joint named {self.joint!r}")
-        self._i = problem.model.joint_q(self.joint).start
+        self._i = _q_start(problem, self.joint, "ForwardDistance")
 
     def values(self, ctx, end, samples):
         return jnp.atleast_1d(self.scale * (end["q"][self._i] - samples["q"][0, self._i]
@@ -730,9 +736,7 @@ class PitchBound(Constraint):
         self.stage, self.name = int(stage), name
 
     def check(self, problem):
-        if self.joint not in problem.model.joint_names:
-            raise ProblemError(f"PitchBound: no joint named {self.joint!r}")
-        self._i = problem.model.joint_q(self.joint).start
+        self._i = _q_start(problem, self.joint, "PitchBound")
 
     def values(self, ctx, end, samples):
         e = samples["q"][:, self._i] - self.center

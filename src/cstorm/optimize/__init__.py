@@ -14,9 +14,10 @@ from .solve import solve
 from .solution import Solution, Status, load_solution
 from .gradcheck import check_gradients
 
-__all__ = ["MotionProblem", "MotionSequence", "solve", "Solution", "Status", "load_solution", "check_gradients", "costs",
-           "constraints", "keyframe_guess",
-           "Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost", "LandingPenalty",
+__all__ = ["MotionProblem", "MotionSequence", "solve", "Solution", "Status", "load_solution", "check_gradients",
+           "costs", "constraints", "keyframe_guess",
+           "Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost",
+           "LandingPenalty",
            "Constraint", "JointLimits", "TorqueLimits", "TerminalState", "ContactDistance", "Periodic", "AverageSpeed",
            "TerminalConstraint", "PathConstraint", "FlightClearance", "SwingClearance", "AtRest", "ForwardDistance",
            "PitchBound", "ScaledTorqueLimits", "SlipPower"]

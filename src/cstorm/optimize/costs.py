@@ -22,8 +22,8 @@ import jax.numpy as jnp
 from ..dynamics.energy import center_of_mass
 from ..errors import ProblemError
 
-__all__ = ["Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost", "LandingPenalty",
-           "resolve", "joint_dofs", "joint_error", "jsonable"]
+__all__ = ["Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost",
+           "LandingPenalty", "resolve", "joint_dofs", "joint_error", "jsonable"]
 
 
 def resolve(value, params):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import threading
 
 import numpy as np
+import jax
+import jax.numpy as jnp
 
 from ..errors import ProblemError
 from .problem import MotionProblem
@@ -53,9 +55,13 @@ class MotionSequence:
     def __repr__(self):
         return f"MotionSequence({self.name!r}, {len(self.segments)} segments)"
 
-    def _solve(self, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose, callback,
-               checkpoint, options, out, objective_scale="auto"):
-        from .solve import _solve_problem
+    def solve_segments(self, solve_one, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose,
+                       callback, checkpoint, options, out, objective_scale="auto"):
+        """Solve the segments in order with ``solve_one(segment, q0=..., v0=..., **options)``
+        (`cstorm.solve`'s single-problem solver), each from the previous one's final
+        state, and return the sequence's `Solution` (its ``segments`` hold the segments'
+        solutions, its trajectory their concatenation). Stops after an interrupted
+        segment. ``checkpoint``: segment ``k`` writes ``{checkpoint}.seg{k}.npz``."""
         sols = []
         q0 = v0 = None
         # (the background compile builds the SQP transcription's functions; DDP compiles its own)
@@ -65,10 +71,9 @@ class MotionSequence:
             ck = None if checkpoint is None else f"{checkpoint}.seg{k}.npz"
             if warm is not None and k > 0:
                 warm.wait(k - 1)  # its compile, started in the background, is done (or failed)
-            s = _solve_problem(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
-                               tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
-                               checkpoint=ck, options=options, out=out, q0=q0, v0=v0,
-                               objective_scale=objective_scale)
+            s = solve_one(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+                          tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
+                          checkpoint=ck, options=options, out=out, q0=q0, v0=v0, objective_scale=objective_scale)
             s.segments = []
             sols.append(s)
             q0, v0 = s.trajectory["q"][-1], s.trajectory["v"][-1]
@@ -121,13 +126,9 @@ class _Precompiler:
     = False`` turns this off."""
 
     def __init__(self, segments, first=None):
-        import jax
-
         self._done = [threading.Event() for _ in segments]
 
         def run():
-            import jax.numpy as jnp
-
             seen = [first]
             for seg, ev in zip(segments, self._done):
                 if any(seg is s for s in seen):  # the same problem again: compiled once

@@ -741,8 +741,6 @@ class MotionProblem:
         x = np.stack(cols, axis=1).T.reshape(-1) if na else np.zeros(0)
         return np.concatenate([x, np.zeros(self.n_vars - self.n_spline_vars)])  # offsets and nodes: 0
 
-    _initial_guess = initial_x  # the name `ddp_problem` calls
-
     # ------------------------------------------------------------------ description
     def describe(self) -> dict:
         """JSON-able description (for provenance and hashing)."""

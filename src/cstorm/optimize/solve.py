@@ -50,8 +50,6 @@ __all__ = ["solve", "SolveOptions"]
 
 _BIG = 1e12
 
-_contact_dict = contact_dict  # the name `ddp_problem` imports
-
 
 class _Interrupted(Exception):
     pass

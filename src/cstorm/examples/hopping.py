@@ -145,8 +145,10 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
     - active joints ``active``: quintic B-splines (``n_ctrl`` control points), start and
       end at their ``q_rest`` values at rest (by construction);
-    - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight ``w_land``, a
-      problem parameter; at the solution, where the landing constraints hold, it is 0);
+    - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight: the problem
+      parameter ``w_land``, 0 by default, so the problem as stated is the torque cost
+      alone; the solve plan sets it to ``w_land`` in every stage: a guide for SLSQP's
+      first stages, about 0 at the solution, where the landing constraints hold);
     - constraints, stage 0: `ForwardDistance` (``distance``), joint position limits and
       `ScaledTorqueLimits` (sampled), `FlightClearance` (``clearance``: a flight phase,
       not scheduled), `PitchBound` (``|pitch - pitch_rest| <= max_pitch``);
@@ -226,7 +228,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
             PitchBound("max_pitch", center=pitch_rest),
         ] + ([ScaledTorqueLimits("tau_factor", dense=True, stage=2, name="torque_limits_every_step")]
              if dense_torque else []),
-        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
+        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": 0.0,
                 **rest_params, **({"tau_factor": 1.0} if dense_torque else {})},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
@@ -250,7 +252,8 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
         def at(entry):  # (fraction of the distance, land_tol[, acc_tol, pose_tol])
             f, tl, *rest = entry
-            return dict(distance=distance * f, land_tol=tl, **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))
+            return dict(distance=distance * f, land_tol=tl, w_land=w_land,
+                        **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))
 
         schedule = [dict(params=dict(distance=d0, w_land=w_land * 0.01), level=0),
                     dict(params=dict(distance=d0, w_land=w_land * 0.1), level=0)] + [
@@ -258,7 +261,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         if dense_torque:  # the limits on every step, tightened at the ramp's last tolerance
             schedule += [dict(params=dict(at(ramp[-1]), distance=distance, tau_factor=f), level=2) for f in dense_ramp]
         if not rest_accel:  # (with rest_accel the ramp's last stage is the final one)
-            schedule += [dict(params=dict(distance=distance, land_tol=land_tol,
+            schedule += [dict(params=dict(distance=distance, land_tol=land_tol, w_land=w_land,
                                           **({"tau_factor": 1.0} if dense_torque else {})),
                               level=2 if dense_torque else 1)]
     if schedule and final_tol is not None:

@@ -369,13 +369,6 @@ def cmd_check_gradients(args):
     return 0
 
 
-def _write_json(path, obj):
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2, default=float)
-    os.replace(tmp, path)
-
-
 def build_parser():
     p = _Parser(prog="cstorm", description="Optimal motions for robots that make and break contact.")
     sub = p.add_subparsers(dest="cmd", required=True)

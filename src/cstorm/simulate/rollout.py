@@ -257,7 +257,7 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
     Args:
       model: the `Model`. q0: (nq,) initial configuration; v0: (nv,) initial velocity
         (default zeros).
-      t_final, dt: duration and step (s); ``N = round(t_final / dt)`` steps.
+      t_final, dt: duration and step (s); ``t_final`` must be a whole number of steps.
       active: names of the active (1-DoF) joints; () for a free (all-passive) rollout.
       ctrl: (n_ctrl, n_active) control points of the active paths (in the order of
         ``active`` as given) on ``spline`` (a `QuinticBSpline` over ``[0, t_final]``). With

@@ -305,7 +305,7 @@ def write_csv(path, motion) -> str:
 # ---------------------------------------------------------------------------------------
 def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=True, plots=True, animation=True,
                   save_solution=True, fidelity_report=None, extra_provenance=None, mp4=True, log=None,
-                  time_step=None, stopped=None, phase=None) -> dict:
+                  time_step=None, stopped=None, phase=None, stop_reason=None) -> dict:
     """Write ``out_dir/``: ``solution.npz``, ``trajectory.csv``, the PNG plots
     (``joints.png``, ``torques.png``, ``contacts.png`` when there is contact,
     ``paths.png``), ``animation.gif`` (and ``animation.mp4`` if ffmpeg is on PATH) and,
@@ -322,14 +322,16 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
     before it ended: only ``solution.npz``, ``trajectory.csv`` and ``summary.json`` are
     written (no fidelity check, success criteria or pictures), and the summary has
     ``success: false`` and ``stopped: {"reason", "phase"}``. A KeyboardInterrupt during
-    the fidelity check or the pictures does the same from there on (reason
-    ``"KeyboardInterrupt"``). ``phase(name)`` is called as each phase starts
-    (``"fidelity"``, ``"pictures"``, ``"animation"``). Returns the summary dict (with
+    the fidelity check, the success criteria or the pictures does the same from there on
+    (reason ``stop_reason()`` when given and not None, else ``"KeyboardInterrupt"``). ``phase(name)`` is called as each phase starts
+    (``"fidelity"``, ``"success criteria"``, ``"pictures"``, ``"animation"``, and
+    ``"writing"`` after each; it may raise KeyboardInterrupt to stop there). Returns the summary dict (with
     ``files``: the names written)."""
 
     os.makedirs(out_dir, exist_ok=True)
     say = log or (lambda msg: None)
     enter = phase or (lambda name: None)
+    interrupted = lambda: (stop_reason() if stop_reason else None) or "KeyboardInterrupt"
     warnings_ = []
     files = []
     stop = dict(reason=str(stopped), phase="solving") if stopped else None
@@ -341,21 +343,26 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
         files.append("solution.npz")
     if fidelity_report is None and check_fidelity and stop is None:
         torques = any("ctrl" not in s.trajectory for s in (solution.segments or [solution]))
-        enter("fidelity")
-        say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
-                                                                    "with DOP853") + " ...")
         try:
+            enter("fidelity")
+            say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
+                                                                        "with DOP853") + " ...")
             fidelity_report = fidelity(problem, solution)
         except KeyboardInterrupt:
-            stop = dict(reason="KeyboardInterrupt", phase="fidelity")
+            stop = dict(reason=interrupted(), phase="fidelity")
             fidelity_report = None
         except Exception as e:  # recorded, not fatal: the solve's files still get written
             fidelity_report = dict(ok=False, flags=[f"fidelity check failed: {type(e).__name__}: {e}"])
             warnings_.append(f"fidelity check failed: {type(e).__name__}: {e}")
+        enter("writing")
+    criteria, per_seg = {}, None  # stopped: not evaluated (they can simulate: hold tests)
     if stop is None:
-        criteria, per_seg = all_criteria(problem, solution)
-    else:  # stopped: the criteria can simulate (hold tests); the run ends unsuccessful anyway
-        criteria, per_seg = {}, None
+        try:
+            enter("success criteria")
+            criteria, per_seg = all_criteria(problem, solution)
+        except KeyboardInterrupt:
+            stop = dict(reason=interrupted(), phase="success criteria")
+        enter("writing")
     summary = make_summary(problem, solution, fidelity_report=fidelity_report, criteria=criteria,
                            per_segment_criteria=per_seg, source=source, extra_provenance=extra_provenance,
                            time_step=time_step)
@@ -381,14 +388,15 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
                                                                                        animation=animation))):
         if stop is not None or not any(kw.values()):
             continue
-        enter("pictures" if what == "plots" else "animation")
         try:
+            enter("pictures" if what == "plots" else "animation")
             files += render(motion, out_dir, mp4=mp4, log=say, **kw)
         except KeyboardInterrupt:
-            stop = dict(reason="KeyboardInterrupt", phase="pictures" if what == "plots" else "animation")
+            stop = dict(reason=interrupted(), phase="pictures" if what == "plots" else "animation")
         except Exception as e:
             warnings_.append(f"{what} failed: {type(e).__name__}: {e}")
             say(f"warning: {what} failed: {type(e).__name__}: {e}")
+        enter("writing")
     if stop is not None:
         summary["success"] = False
         summary["stopped"] = stop

@@ -92,7 +92,7 @@ def resimulate(problem, ctrl, q0, v0, dt, integrator):
         kw = dict(contact_fn=static_contact_fn(problem))
     return simulate(problem.model, q0, v0, t_final=problem.t_final, dt=dt, active=problem.active, ctrl=ctrl,
                     spline=problem.spline, integrator=integrator, q_bound=problem.q_bound, v_bound=problem.v_bound,
-                    **kw)
+                    check=False, **kw)
 
 
 def _qdot_passive(model, layout, q, v):

@@ -2,8 +2,9 @@
 elapsed) and how it stops.
 
 Stopping. SIGINT (Ctrl-C), SIGTERM and SIGHUP all stop a run the same way: in a phase
-that can be cut short (checking the time step, compiling and solving, the fidelity
-check, the success criteria, the pictures) the signal raises KeyboardInterrupt there;
+that can be cut short (loading and building the problem, checking the time step,
+compiling and solving, the fidelity check, the success criteria, the pictures; all of
+``info``, ``animate`` and ``check-gradients``) the signal raises KeyboardInterrupt there;
 the solver returns its best iterate and the command writes ``summary.json`` (``success:
 false``, ``stopped``), ``solution.npz`` and ``trajectory.csv``, prints one line and
 exits with ``128 + signal`` (130, 143, 129). While files are being written the signal
@@ -29,7 +30,7 @@ import time
 #: exit code of a run stopped by each signal (128 + its number)
 STOP_SIGNALS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
 #: phases where a signal raises KeyboardInterrupt (elsewhere it is noted)
-INTERRUPTIBLE = {"checking the time step", "solving", "iterating", "checking the solution's time step",
+INTERRUPTIBLE = {"starting", "checking the time step", "solving", "iterating", "checking the solution's time step",
                  "fidelity", "success criteria", "pictures", "animation"}
 #: phases before any iterate exists (a stop there has nothing to save)
 BEFORE_ITERATES = {"starting", "checking the time step", "solving"}

@@ -348,21 +348,24 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
             say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
                                                                         "with DOP853") + " ...")
             fidelity_report = fidelity(problem, solution)
+            enter("writing")  # inside the try: a signal until here is this phase's
         except KeyboardInterrupt:
+            enter("writing")
             stop = dict(reason=interrupted(), phase="fidelity")
             fidelity_report = None
         except Exception as e:  # recorded, not fatal: the solve's files still get written
+            enter("writing")
             fidelity_report = dict(ok=False, flags=[f"fidelity check failed: {type(e).__name__}: {e}"])
             warnings_.append(f"fidelity check failed: {type(e).__name__}: {e}")
-        enter("writing")
     criteria, per_seg = {}, None  # stopped: not evaluated (they can simulate: hold tests)
     if stop is None:
         try:
             enter("success criteria")
             criteria, per_seg = all_criteria(problem, solution)
+            enter("writing")
         except KeyboardInterrupt:
+            enter("writing")
             stop = dict(reason=interrupted(), phase="success criteria")
-        enter("writing")
     summary = make_summary(problem, solution, fidelity_report=fidelity_report, criteria=criteria,
                            per_segment_criteria=per_seg, source=source, extra_provenance=extra_provenance,
                            time_step=time_step)
@@ -391,12 +394,14 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
         try:
             enter("pictures" if what == "plots" else "animation")
             files += render(motion, out_dir, mp4=mp4, log=say, **kw)
+            enter("writing")
         except KeyboardInterrupt:
+            enter("writing")
             stop = dict(reason=interrupted(), phase="pictures" if what == "plots" else "animation")
         except Exception as e:
+            enter("writing")
             warnings_.append(f"{what} failed: {type(e).__name__}: {e}")
             say(f"warning: {what} failed: {type(e).__name__}: {e}")
-        enter("writing")
     if stop is not None:
         summary["success"] = False
         summary["stopped"] = stop

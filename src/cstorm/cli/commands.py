@@ -313,6 +313,7 @@ def cmd_solve(args):
             run.enter("solving", "compiling first (10-90 s), then one line per iteration")
             sol = cs.solve(problem, method=method, max_iter=max_iter, verbose=not run.quiet, out=sys.stderr,
                            checkpoint=checkpoint, callback=run.callback, **kw)
+            run.enter("writing")  # a signal from here on is noted, not raised: the outputs get written
             log(f"solved in {sol.wall_time_s:.1f} s (compile {sol.compile_time_s:.1f} s): {sol.message}")
     except KeyboardInterrupt:
         return _stopped_before_iterates(run, args, out)
@@ -321,7 +322,9 @@ def cmd_solve(args):
         try:
             run.enter("checking the solution's time step")
             _check_solution_steps(problem, sol, time_step, cmd)
+            run.enter("writing")
         except KeyboardInterrupt:
+            run.enter("writing")
             stopped = run.stop_reason or "SIGINT"
     run.enter("writing", f"files to {out}")
     summary = write_outputs(problem, sol, out, source=source, check_fidelity=not args.no_fidelity,

@@ -382,3 +382,49 @@ def test_signal_while_really_compiling(tmp_path, monkeypatch, sig):
     monkeypatch.setenv("CSTORM_JAX_CACHE", "")
     rc, _, stderr, out = _stop_at(tmp_path, "compiling the objective", sig, ["--no-step-check"], pause=False)
     _assert_stopped(rc, stderr, out, sig, "solving", best_iterate=False)
+
+
+def test_demo_stopped_then_resumed(tmp_path, monkeypatch):
+    """`cstorm demo` on a two-segment stand-in (the tumbler would compile for minutes):
+    SIGTERM while iterating writes the best iterate and keeps the checkpoints; `--resume`
+    finishes the sequence, a rerun without --force or --resume is refused."""
+    import threading
+
+    from cstorm import examples
+    from cstorm.cli import commands as cli
+    from cstorm.viz import demo as viz_demo
+
+    p = cs.examples.get("acrobot")(t_final=1.0, n_ctrl=8, continuation=False)
+    seq = cs.MotionSequence([p, p], name="standin2")
+    seq.solve_options["max_iter"] = 2
+    monkeypatch.setitem(examples._registry(), "standin2", lambda: seq)
+    monkeypatch.setattr(viz_demo, "DEMO_PROBLEM", "standin2")
+    monkeypatch.setattr(cli, "_PROBLEMS", {})
+    monkeypatch.setenv("CSTORM_PAUSE_AT", "iterating:60")
+    out = tmp_path / "demo"
+    argv = ["demo", "--out", str(out), "--no-animation", "--no-fidelity", "--json"]
+    err = io.StringIO()
+
+    def kill_when_paused():
+        for _ in range(6000):
+            if "pausing" in err.getvalue():
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+            threading.Event().wait(0.05)
+    threading.Thread(target=kill_when_paused, daemon=True).start()
+    so = io.StringIO()
+    with contextlib.redirect_stdout(so), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    s = _one_json(so.getvalue())
+    assert rc == 143 and s["stopped"] == {"reason": "SIGTERM", "phase": "solving"}, err.getvalue()
+    assert "Traceback" not in err.getvalue() and "cstorm demo --out" in err.getvalue()
+    assert (out / "checkpoint.npz.seg0.npz").exists() and (out / "acrobot_info.txt").exists()
+    monkeypatch.delenv("CSTORM_PAUSE_AT")
+    rc, stdout, _ = _run(argv)
+    assert rc == 2 and "--resume" in _one_json(stdout)["message"]
+    rc, stdout, stderr = _run(argv + ["--resume"])
+    s = _one_json(stdout)
+    assert "segments" in s, (s, stderr)
+    assert rc in (0, 1) and "stopped" not in s and len(s["segments"]) == 2, (s, stderr)
+    assert outdir.checkpoint_files(str(out)) == []
+    assert set(outdir.read_manifest(str(out))["files"]) >= {"summary.json", "solution.npz", "acrobot_info.txt"}

@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 
 
@@ -655,7 +656,8 @@ def main(argv=None):
         progress.enable(False)
         warnings.showwarning = old_show
         args.run.restore()
-    if as_command and args.run.signum is not None:
+    busy = [t for t in threading.enumerate() if t.name == "cstorm-precompile" and t.is_alive()]
+    if as_command and (args.run.signum is not None or busy):
         sys.stdout.flush(), sys.stderr.flush()
         os._exit(rc)  # a background compile thread must not run into interpreter shutdown
     return rc

@@ -231,7 +231,7 @@ def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
     from cstorm import examples
 
     p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
-    monkeypatch.setitem(examples._registry(), "twoseg", lambda: cs.MotionSequence([p, p], name="twoseg"))
+    monkeypatch.setitem(examples.registry(), "twoseg", lambda: cs.MotionSequence([p, p], name="twoseg"))
     rc, stdout, _ = _run(["solve", "twoseg", "--max-iter", "1", "--out", str(tmp_path / "seq"), "--json"])
     s = _one_json(stdout)
     assert rc == 1 and s["problem"] == "twoseg" and len(s["segments"]) == 2
@@ -265,7 +265,7 @@ def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
 
     assert viz_demo.DEMO_PROBLEM == "tumbler" and "tumbler" in cs.examples.names()
     p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
-    monkeypatch.setitem(examples._registry(), "standin", lambda: p)
+    monkeypatch.setitem(examples.registry(), "standin", lambda: p)
     monkeypatch.setattr(viz_demo, "DEMO_PROBLEM", "standin")
     rc, stdout, stderr = _run(["demo", "--out", str(tmp_path), "--guess", "--json"])
     s = _one_json(stdout)

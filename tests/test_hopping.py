@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import cstorm as cs
-from cstorm.examples._hopping import flight_time, soft_clearance
-from cstorm.examples._planar import capsule_inertia, longest_run
+from cstorm.examples.hopping import flight_time
+from cstorm.examples.planar import longest_run
 
 NAMES = ("hopper", "luxo")
 
@@ -48,9 +48,9 @@ def test_problem_structure(problem):
     m = _module(problem.name)
     assert problem.model.joint_names[:3] == ("root_x", "root_z", "root_pitch")
     assert problem.active == m.ACTIVE
-    # the torque limits on every step form a third level (default dense_torque)
-    assert problem.n_levels == 3
     assert callable(problem.success_criteria)
+    # the plan ends with the real problem: every constraint level, the full distance, the
+    # motor limits unrelaxed on every step
     sched = problem.solve_options["schedule"]
     assert sched[-1]["level"] == problem.n_levels - 1
     assert sched[-1]["params"]["distance"] == pytest.approx(problem.params["distance"])
@@ -90,28 +90,12 @@ def test_values_and_jacobian_finite(problem):
     assert np.linalg.norm(np.asarray(g)) > 0
 
 
-def test_soft_clearance_bounds():
-    rng = np.random.default_rng(0)
-    d = rng.uniform(-0.01, 0.1, size=(40, 6))
-    true = np.max(np.min(d, axis=1))
-    s = float(soft_clearance(d, 1e-3, 2e-3))
-    assert true - 1e-3 * np.log(6) - 1e-12 <= s <= true + 2e-3 * np.log(40) + 1e-12
-
-
 def test_flight_time_and_longest_run():
     t = np.linspace(0.0, 1.0, 11)
     flag = np.array([0, 1, 1, 1, 0, 0, 1, 1, 0, 0, 0], bool)
     assert longest_run(t, flag) == pytest.approx((0.3, 0.2))
     d = np.where(flag[:, None], 0.05, 0.0) * np.ones((11, 3))
     assert flight_time(t, d, 0.01) == pytest.approx((0.3, 0.2))
-
-
-def test_capsule_inertia_mass_form():
-    """Given the mass instead of the density, the same capsule."""
-    m, I = capsule_inertia(0.02, 0.1, density=800.0)
-    m2, I2 = capsule_inertia(0.02, 0.1, mass=m)
-    assert m2 == pytest.approx(m, rel=1e-14)
-    np.testing.assert_allclose(I2, I, rtol=1e-13)
 
 
 def _solve_and_check(name):
@@ -157,7 +141,7 @@ def test_hopper_fast_variant_hops_and_lands():
     plan is the slow test below."""
     base = _problem("hopper")
     p = _module("hopper").fast_variant(base)
-    assert p._compiled is base._compiled and base.solve_options["schedule"] != p.solve_options["schedule"]
+    assert p.compiled("fun_jac") is base.compiled("fun_jac") and base.solve_options["schedule"] != p.solve_options["schedule"]
     sol = cs.solve(p)
     assert sol.success, sol.message
     crit = p.success_criteria(sol)
@@ -175,50 +159,12 @@ def test_hopper_full_solve_meets_criteria():
     assert {"holds_still_pitch", "holds_still_position", "still_after_hold", "torque_limits"} <= set(crit)
 
 
-def test_first_step_scales_the_auto_objective_scale():
-    """``solve_options["first_step"]`` (used by the hopping problems) scales SLSQP's
-    first step: the auto objective scale is ``first_step / |grad f|_inf``."""
-    from cstorm.optimize.solve import _objective_scale
-
-    class Ev:
-        def at(self, x):
-            return (0.0, None, None, False, np.array([0.5, -4.0]))
-
-    assert _objective_scale("auto", Ev(), None) == pytest.approx(0.25)
-    assert _objective_scale("auto", Ev(), None, 0.1) == pytest.approx(0.025)
-    assert _objective_scale(None, Ev(), None, 0.1) == 1.0
-
-
-def test_at_rest_accel_tol_values():
-    """`AtRest` with ``accel_tol``: ``|v_p| <= tol`` and ``|a_p| <= accel_tol`` (values
-    scaled by ``accel_scale``), each from both sides; without it the old single
-    tolerance; ``accel_tol`` needs ``acceleration=True`` and ``tol``."""
-    from types import SimpleNamespace
-
-    from cstorm.errors import ProblemError
-    from cstorm.examples._hopping import AtRest
-
-    prob = SimpleNamespace(layout=SimpleNamespace(vp_idx=[0, 1]))
-    ctx = SimpleNamespace(params={"tv": 1e-3, "ta": 0.5})
-    end = dict(v=np.array([2e-4, -3e-3, 9.0]), a=np.array([0.4, -0.7, 9.0]))
-    c = AtRest(tol="tv", accel_tol="ta")
-    c.check(prob)
-    np.testing.assert_allclose(np.asarray(c.values(ctx, end, None)),
-                               [8e-4, 4e-3, 1.2e-3, -2e-3, 0.01, 0.12, 0.09, -0.02], atol=1e-15)
-    assert c.describe()["accel_tol"] == "ta" and "accel_tol" not in AtRest(tol="tv").describe()
-    old = AtRest(tol="tv")
-    old.check(prob)
-    assert np.asarray(old.values(ctx, end, None)).shape == (8,)
-    with pytest.raises(ProblemError, match="accel_tol"):
-        AtRest(accel_tol="ta")
-
-
 def test_hold_test_at_the_standing_rest(problem):
-    """`_planar.hold_test` from the stored standing equilibrium at rest: the base does not
+    """`planar.hold_test` from the stored standing equilibrium at rest: the base does not
     move (< 1e-6 rad, m) and stays still."""
     from types import SimpleNamespace
 
-    from cstorm.examples._planar import hold_test
+    from cstorm.examples.planar import hold_test
 
     q0 = np.asarray(problem.q0)
     sol = SimpleNamespace(trajectory=dict(q=q0[None], v=np.zeros((1, problem.model.nv))))

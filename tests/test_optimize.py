@@ -221,7 +221,7 @@ def test_sequence_compiles_later_segments_in_the_background(problem):
     other = examples.get("acrobot")(t_final=3.0, n_ctrl=14, dt=0.02)
     s = solve(MotionSequence([problem, other]), max_iter=2, continuation={"target": [np.pi]})
     assert len(s.segments) == 2
-    assert {k: f._cache_size() for k, f in other._compiled.items()} == {"fun_jac": 1, "trajectory": 1}
+    assert {k: other.compiled(k)._cache_size() for k in ("fun_jac", "trajectory")} == {"fun_jac": 1, "trajectory": 1}
 
 
 def test_problem_validation():
@@ -262,85 +262,6 @@ def test_trust_constr_swing_up(problem):
     assert s.info["method"] == "trust-constr" and s.cost == pytest.approx(154.29, rel=1e-3)
     with pytest.raises(cs.InputError, match="method must be one of"):
         solve(problem, method="newton")
-
-
-def test_variable_bounds_follow_joint_limits():
-    """Free control points are boxed by the active joints' position limits (a clamped
-    B-spline stays in the convex hull of its control points); unlimited joints are
-    unbounded."""
-    from cstorm.optimize.solve import variable_bounds
-    m = cs.robots.tumbler()
-    q0 = cs.robots.tumbler_standing_q()
-    p = MotionProblem(m, ["shoulder", "hip"], 1.0, 8, 0.05, q0)
-    lb, ub = variable_bounds(p)
-    nf = p.n_free
-    assert lb.shape == ub.shape == (p.n_vars,)
-    # layout order is model order: hip first, then shoulder
-    assert p.active == ("hip", "shoulder")
-    np.testing.assert_allclose(lb[:nf], -2.8)
-    np.testing.assert_allclose(ub[nf:], 3.0)
-    a = examples.get("acrobot")(**FAST)
-    lb, ub = variable_bounds(a)
-    assert np.all(np.isinf(lb)) and np.all(np.isinf(ub))
-
-
-def test_terminal_state_acceleration_part():
-    """``TerminalState(joint, v=..., a=...)``: the values are the final velocity, then the
-    final acceleration (the dynamics' passive acceleration at the end state) minus their
-    targets; as an inequality ``tol -/+ error``; ``a`` alone is enough."""
-    import jax.numpy as jnp
-    m = acrobot_model()
-    cons = [constraints.TerminalState("shoulder", v=0.0, a=0.5),
-            constraints.TerminalState("shoulder", a=0.0, kind="ineq", tol="atol")]
-    p = MotionProblem(m, ["elbow"], 0.4, 6, 0.02, np.array([0.3, 0.2]), constraints=cons, params={"atol": 2.0})
-    x = jnp.asarray(p.x0) + 0.1
-    r = p.evaluate(x, p.data())
-    tr = p.trajectory(x, p.data())
-    vT, aT = float(tr["v"][-1][0]), float(tr["a"][-1][0])
-    assert abs(aT) > 1e-3  # the passive shoulder is not at rest at 0.3 rad
-    np.testing.assert_allclose(np.asarray(r["c_eq"]), [vT, aT - 0.5], rtol=1e-12)
-    np.testing.assert_allclose(np.asarray(r["c_in"]), [2.0 - aT, 2.0 + aT], rtol=1e-12)
-    assert "a" in cons[0].describe() and "a" not in constraints.TerminalState("shoulder", v=0.0).describe()
-
-
-def test_torque_limits_dense_bound_every_step():
-    """``TorqueLimits(dense=True)``: every integration step enters, through a smooth max per
-    window of the constraint grid, so its values bound the worst step's from the safe side,
-    within ``ln(L)/rho`` of the limit; the sampled form misses steps between samples. The
-    gradient is finite and matches central differences."""
-    import jax.numpy as jnp
-    from cstorm.optimize.constraints import window_index, ks_max
-    W = window_index(np.array([0, 4, 8, 10]), 10)
-    assert W.shape == (4, 4)
-    assert sorted(set(W.ravel().tolist())) == list(range(11))  # every step, in its own window
-    g = jnp.array([[0.3, 0.9, 0.9, -2.0]])
-    k = float(ks_max(g, 50.0, axis=1)[0])
-    assert 0.9 <= k <= 0.9 + np.log(4) / 50
-    m = acrobot_model()
-    lim = 2.0
-    terms = [constraints.TorqueLimits(limits=lim, normalized=True),
-             constraints.TorqueLimits(limits=lim, normalized=True, dense=True, rho=400.0)]
-    p = MotionProblem(m, ["elbow"], 0.6, 6, 0.01, np.array([0.3, 0.2]), constraints=terms, n_path_samples=5)
-    x = jnp.asarray(p.x0) + jnp.linspace(-0.4, 0.5, p.n_vars)
-    r = np.asarray(p.evaluate(x, p.data())["c_in"])
-    n = len(r) // 2
-    grid, dense = r[:n], r[n:]
-    tau = np.asarray(p.trajectory(x, p.data())["tau"])[:, list(p.layout.va_idx)]
-    worst = 1.0 - np.max(np.abs(tau)) / lim  # the true margin on the worst step
-    Wn = terms[1]._windows
-    L = Wn.shape[1]
-    assert dense.min() <= worst + 1e-12 and dense.min() >= worst - np.log(L) / 400.0
-    assert np.all(dense <= grid + 1e-12)  # never less strict than the samples
-    up = 1.0 - np.max(tau[Wn, 0], axis=1) / lim  # each window's true margin, upper bound
-    assert np.all(dense[:len(up)] <= up + 1e-12) and np.all(dense[:len(up)] >= up - np.log(L) / 400.0)
-    assert np.any(grid[:len(up)] > up + 1e-3)  # the samples alone miss steps between them
-    assert terms[1].describe()["dense"] and "dense" not in terms[0].describe()
-    f = lambda xx: p.evaluate(xx, p.data())["c_in"][n:]
-    J = np.asarray(jax.jacfwd(f)(x))
-    e = np.zeros(p.n_vars)
-    e[1] = 1e-6
-    fd = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / 2e-6
-    np.testing.assert_allclose(J[:, 1], fd, rtol=1e-5, atol=1e-8)
 
 
 def test_evaluate_records_the_constraint_grid_only(monkeypatch):

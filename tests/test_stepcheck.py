@@ -80,7 +80,7 @@ def test_tumbler_limit_matches_simulation(tumbler4):
     p, _ = tumbler4
     q = T.start_q(p.model)
     lim = cs.check_time_step(p, q=q)["dt_limit"]
-    env, contact = T._env_contact()
+    env, contact = T.env_contact()
     vT = {dt: cs.simulate.simulate(p.model, q, np.zeros(5), t_final=2.0, dt=dt, active=("hip", "shoulder"), env=env,
                                    contact=contact).v[-1, :3] for dt in (2.5e-4, 0.97 * lim, 1.03 * lim)}
     ref = vT[2.5e-4]
@@ -211,8 +211,8 @@ def test_cli_solve_records_time_step(tmp_path, monkeypatch):
     stiff = slider_problem(m, k, c, 0.0625, name="stiff")  # 16 steps, past the limit
     fine = slider_problem(m, k, c, 0.02, name="fine")
     monkeypatch.setattr(cli, "_PROBLEMS", {})  # the CLI's cache of built problems: keep ours out of other tests
-    monkeypatch.setitem(examples._registry(), "stiff", lambda: stiff)
-    monkeypatch.setitem(examples._registry(), "stiff_seq", lambda: cs.MotionSequence([fine, stiff], name="stiff_seq"))
+    monkeypatch.setitem(examples.registry(), "stiff", lambda: stiff)
+    monkeypatch.setitem(examples.registry(), "stiff_seq", lambda: cs.MotionSequence([fine, stiff], name="stiff_seq"))
     fast = ["--max-iter", "1", "--no-fidelity", "--no-animation", "--json"]
     rc, stdout, stderr = _run(["solve", "stiff", "--out", str(tmp_path / "one"), *fast])
     s = _one_json(stdout)

@@ -44,7 +44,7 @@ def test_nominal_postures_are_at_rest(model, posture):
     """Held still, the start posture (on the foot) and the handstand (on the palm) stay
     put: they are statically stable rest states of the contact model at the height the
     example computes (no drop, no drift)."""
-    env, contact = T._env_contact()
+    env, contact = T.env_contact()
     q0 = getattr(T, posture)(model)
     tr = cs.simulate.simulate(model, q0, t_final=0.5, dt=4e-3, active=("hip", "shoulder"), env=env, contact=contact)
     q, v = np.asarray(tr.q), np.asarray(tr.v)
@@ -83,39 +83,10 @@ def test_rest_plans_end_tight_enough_for_the_criteria(name):
     assert tols == sorted(tols, reverse=True)
 
 
-def test_stage_trust_region_bounds(model):
-    """``solve_options["trust_region"]``: each stage's variable bounds are the joint-limit
-    bounds intersected with a box of that radius around the stage's start (moved into
-    the limits first)."""
-    from cstorm.optimize.solve import _stage_bounds, variable_bounds
-
-    p = T.tumbler_segment("start", model=model)
-    lb, ub = variable_bounds(p)
-    x = np.asarray(p.x0, float).copy()
-    x[0] = ub[0] + 1.0  # outside the limits: clipped first
-    p.solve_options["trust_region"] = 0.2
-    slb, sub = _stage_bounds(p, x)
-    xc = np.clip(x, lb, ub)
-    np.testing.assert_allclose(slb, np.maximum(lb, xc - 0.2))
-    np.testing.assert_allclose(sub, np.minimum(ub, xc + 0.2))
-    assert np.all(slb <= xc) and np.all(xc <= sub)
-    r = np.linspace(0.01, 0.3, p.n_vars)  # one radius per variable
-    p.solve_options["trust_region"] = r
-    slb, sub = _stage_bounds(p, x)
-    np.testing.assert_allclose(slb, np.maximum(lb, xc - r))
-    np.testing.assert_allclose(sub, np.minimum(ub, xc + r))
-    p.solve_options["trust_region"] = np.ones(3)
-    with pytest.raises(cs.InputError, match="trust_region"):
-        _stage_bounds(p, x)
-    p.solve_options.pop("trust_region")
-    for a, b in zip(_stage_bounds(p, x), (lb, ub)):
-        np.testing.assert_array_equal(a, b)
-
-
 def _guess_rollout(p, q0=None, v0=None):
     """The rollout of ``p``'s initial guess as the solver starts it: the control points
     inside the joint limits (`variable_bounds`); from ``q0, v0`` (default ``p``'s start)."""
-    from cstorm.optimize.solve import variable_bounds
+    from cstorm.optimize.bounds import variable_bounds
 
     x = np.clip(np.asarray(p.x0, float), *variable_bounds(p))
     tr = p.compiled("trajectory")(jnp.asarray(x), p.data(q0=q0, v0=v0))
@@ -221,7 +192,7 @@ def test_bridge_guess_keeps_feet_then_hands_on_the_floor(model):
     the planted feet, then about the planted hands, so the supporting contact points stay
     at the resting sink (the guess is geometrically contact-consistent); it starts at the
     start posture and ends at the nominal handstand; it needs ``shooting > 1``."""
-    env, contact = T._env_contact()
+    env, contact = T.env_contact()
     p = T.tumbler_segment("handstand", model=model, shooting=10, guess="bridge", t_final=2.0, n_ctrl=12)
     assert p.shooting == 10 and p.node_guess is not None and len(p.solve_options["schedule"]) == 1 + len(T.REST_RAMP)
     labels = cs.contact_labels(model, env)

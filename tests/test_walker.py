@@ -233,10 +233,8 @@ def test_walker_fast_variant_walks_one_periodic_step():
     """CI's variant of `cstorm solve walker` (`walker.fast_variant`: 0.4 m/s, 7 control
     points, no speed ramp): from the default posture guess, a periodic step at the
     average speed with each foot swinging clear of the ground, no foot through the floor,
-    every constraint met (measured: 35 iterations). The full plan is the slow test
-    below."""
+    every constraint met. The full plan is the slow test below."""
     p = W.fast_variant()
-    assert p.params["speed"] == pytest.approx(0.4) and p.spline.n_ctrl == 7
     sol = cs.solve(p)
     assert sol.success, sol.message
     crit = p.success_criteria(sol)

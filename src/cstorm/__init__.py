@@ -5,7 +5,7 @@ float64: enable it with ``jax.config.update("jax_enable_x64", True)`` before use
 and the test-suite do; cstorm never changes global JAX flags on import).
 """
 
-__version__ = "0.1.0"
+from .version import __version__
 
 from .errors import CstormError, ModelError, ModelWarning, ShapeError, InputError, DivergenceError, ProblemError
 from .geometry.shapes import Sphere, Capsule, Box, Cylinder, Plane, ConvexMesh
@@ -21,7 +21,6 @@ from .dynamics import (
 )
 from .trajectory import QuinticBSpline
 from .contact import ContactParams
-from . import robots
 from .geometry import signed_distance
 from .contact import Environment, Obstacle, ground, incline, platform, step
 from .contact import contact_forces, ContactData, contact_labels
@@ -29,4 +28,5 @@ from . import simulate
 from .optimize import MotionProblem, MotionSequence, solve, Solution, Status, load_solution, check_gradients
 from .analysis.timestep import check_time_step
 from . import examples
+from .examples import robots
 from .allocator import tune_allocator

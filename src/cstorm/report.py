@@ -32,10 +32,10 @@ from .errors import InputError
 from .model.info import dof_names
 from .io.files import atomic_write, json_safe, write_json
 from .io.problemfile import load_problem_text
-from .optimize.solution import Solution, Status
-from .optimize.solve import _contact_dict
+from .optimize.solution import Solution, Status, contact_dict
 from .viz import animation as _anim
 from .viz import plots as _plots
+from .version import __version__
 from .viz.motion import Motion
 
 __all__ = ["Criterion", "evaluate_criteria", "fidelity", "make_summary", "write_csv", "write_json", "write_outputs",
@@ -117,7 +117,7 @@ def solution_at(problem, x=None, *, evaluate=True, message="not solved: the init
         traj = dict(t=np.asarray(p.t), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"], ctrl=tr["ctrl"])
         if tr.get("contact") is not None:
             c = tr["contact"]
-            traj["contact"] = c if isinstance(c, dict) else _contact_dict(c)
+            traj["contact"] = c if isinstance(c, dict) else contact_dict(c)
         cost = viol = float("nan")
         if evaluate:
             f, ce, ci, _ = (np.asarray(a) for a in p.compiled("fun")(jnp.asarray(xk), data))
@@ -170,7 +170,6 @@ def make_summary(problem, solution, *, fidelity_report=None, criteria=None, per_
     all are, else None; ``dt_limit``: the smallest; ``solution_ok`` likewise over the
     entries' ``"solution"`` checks, when ``cstorm solve`` added them). It does not enter
     ``success``."""
-    from . import __version__
 
     segs, sols = problem_segments(problem), segment_solutions(solution)
     if criteria is None:

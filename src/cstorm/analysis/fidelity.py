@@ -78,7 +78,7 @@ def static_contact_fn(problem):
     key = id(problem)
     if key not in _contact_fn_cache:
         m = problem.model
-        _contact_fn_cache[key] = (problem, lambda q, v: problem._contact_fn(m, None, None, q, v))
+        _contact_fn_cache[key] = (problem, lambda q, v: problem.contact_fn(m, None, None, q, v))
     return _contact_fn_cache[key][1]
 
 
@@ -88,7 +88,7 @@ def resimulate(problem, ctrl, q0, v0, dt, integrator):
     kw = {}
     if problem.env is not None:
         kw = dict(env=problem.env, contact=problem.contact)
-    elif problem._contact_fn is not None:
+    elif problem.contact_fn is not None:
         kw = dict(contact_fn=static_contact_fn(problem))
     return simulate(problem.model, q0, v0, t_final=problem.t_final, dt=dt, active=problem.active, ctrl=ctrl,
                     spline=problem.spline, integrator=integrator, q_bound=problem.q_bound, v_bound=problem.v_bound,
@@ -137,7 +137,7 @@ def _rhs_function(problem):
     (all segments of a sequence, whatever their horizon or control points)."""
 
     layout = problem.layout
-    user_cf = None if problem.env is not None or problem._contact_fn is None else static_contact_fn(problem)
+    user_cf = None if problem.env is not None or problem.contact_fn is None else static_contact_fn(problem)
     key = (layout, problem.env is not None, user_cf)
     if key in _rhs_cache:
         return _rhs_cache[key]

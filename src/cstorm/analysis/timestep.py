@@ -127,7 +127,7 @@ def _jacobian_fn(problem):
 
     layout = problem.layout
     has_env = problem.env is not None
-    user_cf = None if has_env or problem._contact_fn is None else static_contact_fn(problem)
+    user_cf = None if has_env or problem.contact_fn is None else static_contact_fn(problem)
     key = (layout, has_env, user_cf)
     if key in _jac_cache:
         return _jac_cache[key]
@@ -334,7 +334,7 @@ def _states(problem, q, v, along, n_states):
 
 def _hint(problem, lam, growing):
     """``(what the mode likely is, remedy)`` for the message."""
-    contact = problem.env is not None or problem._contact_fn is not None
+    contact = problem.env is not None or problem.contact_fn is not None
     if growing:
         return "a mode the dynamics lets grow, amplified further by the step", ""
     if abs(lam.imag) <= abs(lam.real):
@@ -398,7 +398,7 @@ class _Rollout:
     def __init__(self, model, layout, integrator, dt, env, contact, contact_fn):
         self.model, self.layout, self.integrator, self.dt = model, layout, integrator, float(dt)
         self.env, self.contact = env, contact
-        self._contact_fn = None if contact_fn is None else (lambda m, e, c, q, v: contact_fn(q, v))
+        self.contact_fn = None if contact_fn is None else (lambda m, e, c, q, v: contact_fn(q, v))
         self.q0 = self.v0 = None
         self.shooting = 1
 

@@ -61,7 +61,7 @@ from . import _checks
 from .kinematics import joint_placements, world_placements
 from .rnea import gravity_acceleration
 from .derivative_types import ABADerivatives, HybridDerivatives, RNEADerivatives, validate_inputs
-from .derivatives_ad import hybrid_derivatives_ad
+from .derivatives_ad import aba_derivatives_ad, hybrid_derivatives_ad, rnea_derivatives_ad
 
 
 
@@ -503,7 +503,6 @@ def rnea_derivatives(model, q, v, a, f_ext=None, method="analytic"):
     a = _checks.vec(model, a, model.nv, "a", fn)
     f_ext = _checks.fext(model, f_ext, fn)
     if method == "autodiff":
-        from .derivatives_ad import rnea_derivatives_ad
         return rnea_derivatives_ad(model, q, v, a, f_ext)
     _check_method(method, fn)
     r = hybrid_derivatives_unchecked(model, q, v, a, jnp.zeros(0, dtype=v.dtype), (True,) * model.nv, f_ext)
@@ -525,7 +524,6 @@ def aba_derivatives(model, q, v, tau, f_ext=None, method="analytic"):
     tau = _checks.vec(model, tau, model.nv, "tau", fn)
     f_ext = _checks.fext(model, f_ext, fn)
     if method == "autodiff":
-        from .derivatives_ad import aba_derivatives_ad
         return aba_derivatives_ad(model, q, v, tau, f_ext)
     _check_method(method, fn)
     r = hybrid_derivatives_unchecked(model, q, v, jnp.zeros(0, dtype=v.dtype), tau, (False,) * model.nv, f_ext)

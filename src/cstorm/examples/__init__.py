@@ -5,6 +5,9 @@
 Each returns a `MotionProblem` (or `MotionSequence`) whose ``solve_options`` hold the
 solve plan (continuation, staging) that makes ``cs.solve(problem)`` converge.
 
+The robots of every example are in `robots` (``cs.robots``); `hopping` and `planar`
+hold what several examples share (the hop-and-land problem, success criteria).
+
 Registration: every module of this package that defines ``EXAMPLES = {name: factory}``
 contributes its problems; modules are found with `pkgutil`, so adding an example is
 adding a module (no central list to edit).
@@ -20,7 +23,10 @@ from ..errors import InputError
 _REGISTRY: dict | None = None
 
 
-def _registry() -> dict:
+def registry() -> dict:
+    """The registered problems, ``{name: factory}`` (built on first use: every module of
+    the package is imported once). The dict itself: an entry added to it is a problem
+    `get` finds (a test registers a stand-in this way)."""
     global _REGISTRY
     if _REGISTRY is None:
         reg = {}
@@ -40,13 +46,13 @@ def _registry() -> dict:
 
 def names() -> list:
     """Names of the shipped example problems."""
-    return sorted(_registry())
+    return sorted(registry())
 
 
 def get(name: str):
     """The problem factory registered under ``name`` (call it to build the problem)."""
     try:
-        return _registry()[name]
+        return registry()[name]
     except KeyError:
         raise InputError(f"unknown example problem {name!r}; known: {', '.join(names())}") from None
 
@@ -54,14 +60,14 @@ def get(name: str):
 def __getattr__(name):  # cs.examples.acrobot(...), cs.examples.tumbler(...)
     if name.startswith("__"):
         raise AttributeError(name)
-    reg = _registry()
+    reg = registry()
     if name in reg:
         return reg[name]
     raise AttributeError(f"module 'cstorm.examples' has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_registry()))
+    return sorted(set(globals()) | set(registry()))
 
 
-_registry()
+registry()

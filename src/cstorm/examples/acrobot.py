@@ -2,34 +2,17 @@
 a vertical plane, the shoulder passive, the elbow actuated; swing up from hanging to
 upright.
 
-Model (Spong's parameters): links of length ``l = 1 m`` and mass ``m = 1 kg``, CoM at
-the link's middle (0.5 m), inertia ``m l^2 / 12`` about the CoM, gravity 9.81 m/s^2 along
--z. Both joints rotate about the world/link y axis; at ``q = (0, 0)`` both links hang
-straight down, at ``q = (pi, 0)`` the acrobot stands upright. Joints: ``shoulder`` (world
--> link1, at the origin), ``elbow`` (link1 -> link2, at the tip of link 1).
+Model: `cs.robots.acrobot_model` (Spong's parameters).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..model.builder import ModelBuilder
+from ..optimize import constraints, costs
+from ..optimize.problem import MotionProblem
 from ..trajectory import QuinticBSpline
-
-
-def acrobot_model(length: float = 1.0, mass: float = 1.0, gravity: float = 9.81):
-    """The acrobot `Model` (2 revolute joints about y: ``shoulder``, ``elbow``; links
-    ``link1``, ``link2`` hanging along -z at q = 0)."""
-    L, m = float(length), float(mass)
-    Ic = m * L * L / 12.0
-    inertia = np.diag([Ic, Ic, 1e-6 * Ic])  # a thin rod along z
-    b = ModelBuilder("acrobot", gravity=(0.0, 0.0, -float(gravity)))
-    b.add_body("link1", None, "revolute", joint_name="shoulder", mass=m, com=(0.0, 0.0, -L / 2), inertia=inertia,
-               axis=(0.0, 1.0, 0.0))
-    b.add_body("link2", "link1", "revolute", joint_name="elbow", mass=m, com=(0.0, 0.0, -L / 2), inertia=inertia,
-               axis=(0.0, 1.0, 0.0), xyz=(0.0, 0.0, -L))
-    b.add_frame("tip", "link2", xyz=(0.0, 0.0, -L))
-    return b.build()
+from .robots import acrobot_model
 
 
 def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator: str = "rk4",
@@ -51,9 +34,6 @@ def acrobot(t_final: float = 3.0, n_ctrl: int = 16, dt: float = 0.01, integrator
     Returns a `MotionProblem`; ``cs.solve(problem)`` solves it (the problem's
     ``solve_options`` hold the continuation schedule).
     """
-    from ..optimize import costs, constraints
-    from ..optimize.problem import MotionProblem
-
     model = acrobot_model()
     spl = QuinticBSpline(n_ctrl, t_final)
     # initial guess: a small elbow oscillation near the hanging pendulum's frequency

@@ -1,52 +1,5 @@
-"""The planar one-legged hopper of MuJoCo/Gymnasium (``Hopper-v5``'s ``hopper.xml``),
-rebuilt with `ModelBuilder` with the same numbers, and a hop-forward problem.
-
-Why a builder model and not ``cs.load_mjcf(hopper.xml)``: the problem must run from a
-plain install (core dependencies only; MuJoCo and Gymnasium are test extras).
-``tests/test_hopper.py`` loads Gymnasium's ``hopper.xml`` with MuJoCo and with
-``cs.load_mjcf`` and checks that this model's mass matrix, bias forces, forward dynamics
-and passive forces agree with MuJoCo's at random states (to ~1e-12).
-
-Model (`hopper_model`; every number is Gymnasium's unless said otherwise)
----------------------------------------------------------------------------
-Four capsules in a chain, torso - thigh - leg - foot, in the x-z plane, gravity 9.81
-m/s^2 along -z. Masses and inertias are MuJoCo's ``inertiafromgeom``: uniform density
-1000 kg/m^3 over each capsule (a cylinder plus two hemispheres, `capsule_inertia`).
-
-| link  | capsule radius | axis length (= 2 x half-length) | mass (kg) | axis        |
-|-------|----------------|----------------------------------|-----------|-------------|
-| torso | 0.05 m         | 0.40 m                           | 3.6652    | vertical    |
-| thigh | 0.05 m         | 0.45 m                           | 4.0579    | vertical    |
-| leg   | 0.04 m         | 0.50 m                           | 2.7814    | vertical    |
-| foot  | 0.06 m         | 0.39 m                           | 5.3156    | horizontal  |
-
-Total 15.820 kg. Principal inertias about the capsule centres (kg m^2): torso
-(0.069246, 0.069246, 0.004451), thigh (0.093299, 0.093299, 0.004941), leg (0.072303,
-0.072303, 0.002182), foot (0.103523, 0.103523, 0.009242) (the last entry about the
-capsule axis).
-
-Frames and joints at ``q = 0`` (standing straight, torso centre at ``root_z`` above the
-ground, world x forward; cstorm puts each link frame at its joint's anchor):
-
-- passive planar base on the torso centre: ``root_x`` (prismatic x), ``root_z``
-  (prismatic z), ``root_pitch`` (revolute about +y), MuJoCo's ``rootx, rootz, rooty``
-  (``q`` equals MuJoCo's ``qpos``: ``root_z`` is the torso centre's height, Gymnasium's
-  ``ref = 1.25``). No armature, damping or limits on the base.
-- ``thigh_joint``: torso -> thigh, at the torso's lower end (0, 0, -0.2) (the torso
-  capsule's end-sphere centre); thigh capsule centre 0.225 m below the joint.
-- ``leg_joint``: thigh -> leg, 0.45 m below the thigh joint; leg capsule centre 0.25 m
-  below it.
-- ``foot_joint`` (ankle): leg -> foot, 0.5 m below the leg joint (the leg capsule's
-  lower end-sphere centre); the foot capsule lies along x, centred 0.065 m ahead of the
-  ankle at ankle height: heel end-sphere centre at x = -0.13, toe at x = +0.26.
-- The three hinges turn about -y (MuJoCo ``axis="0 -1 0"``): a positive angle turns the
-  child's lower end forward (+x). Ranges: thigh [-150, 0] deg, leg [-150, 0] deg, foot
-  [-45, 45] deg (``q = 0`` is the upper limit of thigh and leg: straight). Armature 1
-  kg m^2 and viscous damping 1 N m s/rad on each (Gymnasium's ``<default>``; the motor
-  also supplies the damping torque). Effort limit 200 N m (motor ``gear = 200``,
-  ``ctrlrange = [-1, 1]``). No velocity limits (Gymnasium has none).
-- Standing at ``q = 0`` the ankle is 1.15 m below the torso centre and the foot capsule's
-  underside 1.21 m below it (Gymnasium starts the torso at 1.25 m, 4 cm up in the air).
+"""A hop-forward problem for the planar one-legged hopper of MuJoCo/Gymnasium
+(``Hopper-v5``), `cs.robots.hopper_model` (every number of the model is there).
 
 Contact (`hopper_contact`, not Gymnasium's soft constraints): cstorm's smooth penalty
 law on the two end spheres of every capsule against the ground (8 contact points).
@@ -76,7 +29,7 @@ Why the formulation is what it is:
   values down to 2.5e-6); a free posture moves the balance on the foot directly;
 - 1.5 s with 16 control points leave room and authority to settle after the landing
   (at 1.2 s / 12 points the plan stalls with violations 0.3-8);
-- `_planar.SlipPower` <= 40 W from stage 1 (a foot sliding 0.3 m/s under body weight is
+- `cstorm.optimize.SlipPower` <= 40 W from stage 1 (a foot sliding 0.3 m/s under body weight is
   ~50 W) and ``max_pitch`` 0.6 rad: without them the optimizer gains the distance by
   leaning back and sliding the foot after the landing;
 - "at rest" is judged by the hold test rather than a 1e-2 m/s^2 acceleration bound: on
@@ -88,68 +41,14 @@ Results and what the motion looks like: docs/examples.md.
 
 from __future__ import annotations
 
-import math
+import copy
 
 import numpy as np
 
-from ..geometry.shapes import Capsule
-from ..model.builder import ModelBuilder
-from ._planar import capsule_inertia
-
-# (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
-HOPPER = dict(
-    torso=dict(radius=0.05, length=0.40),
-    thigh=dict(radius=0.05, length=0.45),
-    leg=dict(radius=0.04, length=0.50),
-    foot=dict(radius=0.06, length=0.39),
-    foot_offset=0.065,  # foot capsule centre ahead of the ankle, m
-    thigh_joint=dict(lower=-math.radians(150), upper=0.0),
-    leg_joint=dict(lower=-math.radians(150), upper=0.0),
-    foot_joint=dict(lower=-math.radians(45), upper=math.radians(45)),
-    effort=200.0,  # N m: gear 200 x ctrlrange 1
-    armature=1.0,  # kg m^2
-    damping=1.0,  # N m s/rad
-)
-
-
-def hopper_model(armature: float | None = None, damping: float | None = None, effort: float | None = None):
-    """The Gymnasium hopper (see the module docstring for every number). Keyword
-    arguments override Gymnasium's armature (kg m^2), damping (N m s/rad) and effort
-    limit (N m) of the three hinges. Joints: ``root_x, root_z, root_pitch, thigh_joint,
-    leg_joint, foot_joint``; geoms ``torso_geom, thigh_geom, leg_geom, foot_geom``."""
-    P = HOPPER
-    arm = P["armature"] if armature is None else float(armature)
-    damp = P["damping"] if damping is None else float(damping)
-    eff = P["effort"] if effort is None else float(effort)
-    b = ModelBuilder("hopper", source="<cstorm.examples.hopper.hopper_model>")
-    hinge = dict(axis=(0.0, -1.0, 0.0), armature=arm, damping=damp, effort=eff)
-    t, th, lg, ft = P["torso"], P["thigh"], P["leg"], P["foot"]
-
-    m, I = capsule_inertia(t["radius"], t["length"])
-    b.add_link("torso", mass=m, inertia=I)
-    b.add_geom("torso", Capsule(t["radius"], t["length"]), name="torso_geom")
-
-    m, I = capsule_inertia(th["radius"], th["length"])
-    c = (0.0, 0.0, -th["length"] / 2)
-    b.add_link("thigh", mass=m, com=c, inertia=I)
-    b.add_joint("thigh_joint", "revolute", "torso", "thigh", xyz=(0.0, 0.0, -t["length"] / 2), **hinge,
-                **P["thigh_joint"])
-    b.add_geom("thigh", Capsule(th["radius"], th["length"]), xyz=c, name="thigh_geom")
-
-    m, I = capsule_inertia(lg["radius"], lg["length"])
-    c = (0.0, 0.0, -lg["length"] / 2)
-    b.add_link("leg", mass=m, com=c, inertia=I)
-    b.add_joint("leg_joint", "revolute", "thigh", "leg", xyz=(0.0, 0.0, -th["length"]), **hinge, **P["leg_joint"])
-    b.add_geom("leg", Capsule(lg["radius"], lg["length"]), xyz=c, name="leg_geom")
-
-    m, (Ip, _, Ia) = capsule_inertia(ft["radius"], ft["length"])
-    c = (P["foot_offset"], 0.0, 0.0)
-    b.add_link("foot", mass=m, com=c, inertia=(Ia, Ip, Ip))  # capsule axis along x
-    b.add_joint("foot_joint", "revolute", "leg", "foot", xyz=(0.0, 0.0, -lg["length"]), **hinge, **P["foot_joint"])
-    b.add_geom("foot", Capsule(ft["radius"], ft["length"]), xyz=c, rpy=(0.0, -math.pi / 2, 0.0), name="foot_geom")
-    b.add_frame("heel", "foot", xyz=(P["foot_offset"] - ft["length"] / 2, 0.0, -ft["radius"]))
-    b.add_frame("toe", "foot", xyz=(P["foot_offset"] + ft["length"] / 2, 0.0, -ft["radius"]))
-    return b.build(floating_base="planar")
+from ..contact import ContactParams
+from ..optimize.constraints import SlipPower
+from .hopping import hop_criteria, hop_problem
+from .robots import HOPPER, hopper_model
 
 
 def standing_height():
@@ -164,14 +63,12 @@ ACTIVE = ("thigh_joint", "leg_joint", "foot_joint")
 
 def hopper_contact(stiffness=2.5e4, damping=2000.0, d_on=0.01, d_off=0.0, friction=0.9, v_max=0.3):
     """The hopper's `ContactParams` (see the module docstring for the choice)."""
-    from ..contact import ContactParams
-
     return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
                          v_max=v_max)
 
 
 # Standing rest state with the default contact (q = 0 posture, v = 0): the equilibrium of
-# the passive base computed by `_hopping.standing_equilibrium` (|a_base| < 1e-12 there;
+# the passive base computed by `hopping.standing_equilibrium` (|a_base| < 1e-12 there;
 # tests/test_hopping.py re-checks the force balance). The foot's end spheres rest ~4.4 mm above the
 # ground; the torso tilts back by 0.15 deg (the heel carries 62 % of the weight).
 REST_Z = 1.2143910383975463
@@ -195,7 +92,7 @@ KEYFRAMES = (
 )
 
 
-#: the hopper's landing ramp (see `_hopping.hop_problem`): ``(fraction of the distance,
+#: the hopper's landing ramp (see `hopping.hop_problem`): ``(fraction of the distance,
 #: base velocity tolerance m/s and rad/s, base acceleration tolerance m/s^2 and rad/s^2,
 #: terminal height (m) and pitch (rad) tolerance)``. The distance goes to 100 % at 1 cm,
 #: then the tolerances tighten by about 1.4x per stage (halving them in one stage made
@@ -217,7 +114,7 @@ END_POSTURE_TOL = 0.03
 #: after the landing ramp (the sampled plan needs 1.67x at the landing, on the ankle)
 DENSE_RAMP = (1.6, 1.4, 1.25, 1.1, 1.0)
 
-#: the hold test of the criteria (`_planar.hold_test`): 1 s more with the joints locked,
+#: the hold test of the criteria (`planar.hold_test`): 1 s more with the joints locked,
 #: the base stays within 0.01 rad and 2 mm of where it ended and is still (< 1e-2 m/s)
 HOLD = dict(duration=1.0, pitch_tol=0.01, pos_tol=0.002, v_tol=1e-2)
 
@@ -244,14 +141,14 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     the last stage of ``ramp``, height and pitch within 3 mm / 3 mrad of the standing
     equilibrium), ``root_x`` at least ``distance`` ahead.
 
-    The problem is `_hopping.hop_problem` (costs, constraints, variable bounds, solve plan
+    The problem is `hopping.hop_problem` (costs, constraints, variable bounds, solve plan
     and success criteria are documented there) with ``rest_accel=True``: cost ``integral
     1/2 |tau|^2 dt`` over the three motors (N^2 m^2 s) plus the landing penalty
     (``w_land``, N^2 m^2 s per m^2) of the first stages; a flight phase with every contact
     point at least ``clearance`` m up at some instant (not scheduled); ``|pitch| <=
     max_pitch`` rad; joint limits and ``|tau| <= 200 N m`` (sampled, and with
     ``dense_torque`` on every step after the ramp, along ``dense_ramp``); with
-    ``slip_power`` (W) from stage 1 `_planar.SlipPower`: the contacts' sliding power
+    ``slip_power`` (W) from stage 1 `cstorm.optimize.SlipPower`: the contacts' sliding power
     bounded at every sample, so that the distance is not gained by sliding the foot. The
     last stage stops at SLSQP tolerance ``final_tol``. Success criteria: `hop_criteria`
     with `ACC_TOL` and the `HOLD` test.
@@ -261,9 +158,6 @@ def hopper(distance: float = 0.15, t_final: float = 1.5, n_ctrl: int = 16, dt: f
     starts the node states on the guess's own rollout. ``ramp``: the landing ramp
     (default `RAMP`). ``landing``: further `hop_problem` arguments.
     """
-    from ._hopping import hop_problem
-    from ._planar import SlipPower
-
     model = hopper_model(armature=armature)
     contact = hopper_contact() if contact is None else contact
     q_rest = np.array([0.0, REST_Z, REST_PITCH, 0.0, 0.0, 0.0])
@@ -311,10 +205,6 @@ def fast_variant(problem=None):
 
     Returns the `MotionProblem` with the plan in ``solve_options`` and its own
     ``success_criteria``."""
-    import copy
-
-    from ._hopping import hop_criteria
-
     base = hopper() if problem is None else problem
     if base.name != "hopper":
         raise ValueError(f"hopper.fast_variant: expects a hopper() problem, got {base.name!r}")

@@ -2,31 +2,7 @@
 while) and land back at rest, a contact problem whose gradients run through making and
 breaking contact (issue 4's "small contact problem").
 
-Model (`jumper_model`; every number is in `JUMPER`)
-----------------------------------------------------
-Three links in a chain in the world x-z plane, gravity 9.81 m/s^2 along -z, all joints
-turning about +y (a positive angle tilts a link's +z axis towards +x):
-
-| link  | shape (collision)                   | mass   | CoM                       | inertia about CoM (kg m^2)  |
-|-------|-------------------------------------|--------|---------------------------|-----------------------------|
-| body  | capsule r 0.04 m, axis 0.30 m, z     | 2.0 kg | 0.10 m above the centre   | 0.006 (x, y), 1e-4 (z)      |
-| shank | capsule r 0.025 m, axis 0.30 m, z    | 0.5 kg | middle of the shank       | m l^2/12 = 0.00375, 1e-4    |
-| foot  | capsule r 0.02 m, axis 0.20 m, x     | 0.2 kg | capsule centre            | 1e-4, m l^2/12 = 6.7e-4 (y, z) |
-
-- ``body``: thigh and trunk in one link (the mass sits near the hip, at the top). Its
-  frame is the capsule centre; the passive planar base ``root_x, root_z, root_pitch``
-  (``ModelBuilder.build(floating_base="planar")``) moves it.
-- ``knee`` (active): body -> shank at the body's lower end (0, 0, -0.15); the shank
-  hangs along -z from it. Positive knee angle swings the shank's lower end backwards
-  (-x), the way a knee bends. Range [-0.05, 2.5] rad, effort 40 N m, velocity 15 rad/s.
-- ``ankle`` (active): shank -> foot at the shank's lower end (0, 0, -0.30). The foot
-  capsule lies along x, its centre 0.02 m ahead of and 0.03 m below the ankle: end
-  spheres (heel, toe) at x = -0.08 and +0.12 m, sole 0.05 m below the ankle. Positive
-  ankle angle turns the toe down. Range [-1.2, 1.0] rad, effort 25 N m, velocity 15
-  rad/s.
-- Armature 1e-3 kg m^2 on both motors (geared rotors); no joint damping or springs.
-- Total mass 2.7 kg (weight 26.5 N). Standing straight (all angles 0) the body centre
-  is 0.50 m up and the CoM 0.48 m.
+Model: `cs.robots.jumper_model` (every number is in `cs.robots.JUMPER`).
 
 Contact (`jumper_contact`): `cstorm.contact_forces` on every capsule end sphere (6
 points) against flat ground, with DESIGN.md's feasibility-study values k = 5e3 N/m,
@@ -71,7 +47,7 @@ first as a terminal penalty ``w_land/2 (|z - z0|^2 + |pitch - pitch0|^2 + |v_bas
 with ``w_land`` ramped 1, 10, 100 (constraint level 0: flight, pitch, limits), then
 the landing constraints (level 1) at ``qtol = 5 mm/rad, vtol = 1 cm/s``, then ``1e-3``.
 
-**Status: not yet solved.** The hopper's formulation (`_hopping.hop_problem` on this
+**Status: not yet solved.** The hopper's formulation (`hopping.hop_problem` on this
 model: the crouch of ``crouch_angles(0.5)`` as ``q_rest``, keyframes from `GUESS`,
 distance 0, 1.0 s, RK4 at 4 ms, 16 control points, 5 shooting intervals, clearance 2 cm,
 ``max_pitch`` 0.5, the hopper's `RAMP`, every-step torque limits) converges to a 0.35 s
@@ -92,20 +68,17 @@ motions above the heel strike reaches 5-13 x body weight and 1.3-3.6 cm penetrat
 from __future__ import annotations
 
 import numpy as np
+import jax.numpy as jnp
+from scipy.optimize import brentq, fsolve
 
-from ..geometry.shapes import Capsule
-from ..model.builder import ModelBuilder
+from ..contact import ContactParams, Environment, ground, normal_force
+from ..errors import InputError
+from ..optimize import constraints as C, costs
+from ..optimize.bounds import variable_bounds
+from ..optimize.problem import MotionProblem
+from .robots import JUMPER, jumper_model
 
-JUMPER = dict(
-    gravity=9.81,
-    body=dict(length=0.30, radius=0.04, mass=2.0, com=0.10, inertia=0.006),
-    shank=dict(length=0.30, radius=0.025, mass=0.5),
-    foot=dict(length=0.20, radius=0.02, mass=0.2, x=0.02, z=-0.03),
-    knee=dict(lower=-0.05, upper=2.5, effort=40.0, velocity=15.0),
-    ankle=dict(lower=-1.2, upper=1.0, effort=25.0, velocity=15.0),
-    armature=1e-3,
-    contact=dict(stiffness=5e3, damping=100.0, d_on=0.005, d_off=-0.005, friction=0.8, v_max=0.3, eps=0.01),
-)
+
 ACTIVE = ("knee", "ankle")
 # Posture-level initial guess: keyframes (times as fractions of t_final; joint offsets
 # from the crouch, rad) linearly interpolated and fitted by the splines: hold the
@@ -115,33 +88,8 @@ GUESS = dict(t=(0.0, 0.25, 0.40, 0.525, 0.65, 0.75, 1.0),
              ankle=(0.0, 0.0, 1.1, 0.0, 0.0, 0.0, 0.0))
 
 
-def jumper_model():
-    """The jumper `Model` (see the module docstring): joints ``root_x, root_z,
-    root_pitch, knee, ankle``; bodies ``body, shank, foot``; geoms ``body, shank,
-    foot``."""
-    P = JUMPER
-    b, s, f = P["body"], P["shank"], P["foot"]
-    B = ModelBuilder("jumper", gravity=(0.0, 0.0, -P["gravity"]), source="<cstorm.examples.jumper>")
-    B.add_link("body", mass=b["mass"], com=(0, 0, b["com"]), inertia=(b["inertia"], b["inertia"], 1e-4))
-    B.add_geom("body", Capsule(b["radius"], b["length"]), name="body")
-    B.add_link("shank", mass=s["mass"], com=(0, 0, -s["length"] / 2),
-               inertia=(s["mass"] * s["length"] ** 2 / 12, s["mass"] * s["length"] ** 2 / 12, 1e-4))
-    B.add_joint("knee", "revolute", "body", "shank", xyz=(0, 0, -b["length"] / 2), axis=(0, 1, 0),
-                armature=P["armature"], **P["knee"])
-    B.add_geom("shank", Capsule(s["radius"], s["length"]), xyz=(0, 0, -s["length"] / 2), name="shank")
-    If = f["mass"] * f["length"] ** 2 / 12
-    B.add_link("foot", mass=f["mass"], com=(f["x"], 0, f["z"]), inertia=(1e-4, If, If))
-    B.add_joint("ankle", "revolute", "shank", "foot", xyz=(0, 0, -s["length"]), axis=(0, 1, 0),
-                armature=P["armature"], **P["ankle"])
-    B.add_geom("foot", Capsule(f["radius"], f["length"]), xyz=(f["x"], 0, f["z"]), rpy=(0, np.pi / 2, 0),
-               name="foot")
-    return B.build(floating_base="planar")
-
-
 def jumper_contact(**changes):
     """The jumper's `ContactParams` (module docstring); keyword arguments override."""
-    from ..contact import ContactParams
-
     return ContactParams(**{**JUMPER["contact"], **changes})
 
 
@@ -173,13 +121,10 @@ def _planar(knee, ankle, foot_angle, ankle_xz):
 def crouch_angles(shank_angle: float):
     """``(knee, ankle)`` (rad) of a crouch with the foot flat, the shank tilted forward by
     ``shank_angle`` rad and the CoM over the foot's centre."""
-    from scipy.optimize import brentq
-
     fx = JUMPER["foot"]["x"]
     off = lambda k: _planar(k, -shank_angle, 0.0, (0.0, 0.0))[1][0] - fx
     lo, hi = 0.0, JUMPER["knee"]["upper"]
     if off(lo) * off(hi) > 0:
-        from ..errors import InputError
         raise InputError(f"jumper: no crouch with the CoM over the foot for shank_angle={shank_angle!r} rad")
     k = brentq(off, lo, hi, xtol=1e-14)
     return k, -float(shank_angle)
@@ -190,12 +135,6 @@ def rest_configuration(knee: float, ankle: float, contact=None, x: float = 0.0):
     stands still on flat ground: the foot's tilt and height at which the heel's and toe's
     normal forces carry the weight with no net moment about the CoM (static equilibrium
     of the passive base; friction is zero at rest). ``x``: the ankle's x (m)."""
-    import jax.numpy as jnp
-    from scipy.optimize import fsolve
-
-    from ..contact import normal_force
-    from ..errors import InputError
-
     cp = jumper_contact() if contact is None else contact
     r, W = JUMPER["foot"]["radius"], None
     N = lambda d: float(normal_force(jnp.asarray(d), jnp.asarray(0.0), cp))
@@ -237,12 +176,6 @@ def jumper(t_final: float = 1.0, n_ctrl: int = 12, dt: float = 0.002, flight=(0.
     ``problem.solve_options["schedule"]``. ``problem.success_criteria`` checks the
     flight and the landing on the solution.
     """
-    import jax.numpy as jnp
-
-    from ..contact import Environment, ground
-    from ..optimize import constraints as C, costs
-    from ..optimize.problem import MotionProblem
-
     model = jumper_model()
     cp = jumper_contact() if contact is None else contact
     knee, ankle = crouch_angles(shank_angle)
@@ -277,8 +210,6 @@ def jumper(t_final: float = 1.0, n_ctrl: int = 12, dt: float = 0.002, flight=(0.
     )
     prob.rest_q = q0
     if trust is not None:
-        from ..optimize.solve import variable_bounds
-
         lb, ub = variable_bounds(prob)  # the joint limits
         prob.x0 = np.clip(np.asarray(prob.x0, float), lb, ub)
         prob.x_bounds = (np.maximum(lb, prob.x0 - trust), np.minimum(ub, prob.x0 + trust))

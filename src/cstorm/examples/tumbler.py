@@ -2,7 +2,7 @@
 `MotionSequence` of four segments, each solved from the state where the previous one
 ended, each minimizing the integral of squared active torque.
 
-Robot: `cstorm.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m /
+Robot: `cs.robots.tumbler(feet=True)` (planar; legs 0.30 m / 1.0 kg, torso 0.30 m /
 1.5 kg, arms 0.25 m / 0.5 kg, capsule radii 0.03 / 0.04 / 0.025 m; hip and shoulder
 active, limits +-2.8 / +-3.0 rad, 12 / 8 N m; passive planar base ``root_x, root_z,
 root_pitch`` on the torso; a foot and a palm capsule across the ends of the legs and
@@ -69,7 +69,7 @@ summary.json. With ``dense_torque=True`` the limits also hold on every integrati
 that way on their own, the handstand does not, so it is not the default.
 
 Initial guesses are posture-level keyframes joined by smoothstep ramps
-(`_hopping.keyframe_guess`), documented at each constant. Where a guess counterbalances
+(`cstorm.optimize.keyframe_guess`), documented at each constant. Where a guess counterbalances
 (the hip at 0.1-0.16 rad while the arms swing), the value comes from a scan of rollouts:
 standing on the compliant foot is only marginally stable (the foot's rotational contact
 stiffness, ~25 N m/rad, against gravity's ~13 N m/rad), and swinging the arms without it
@@ -86,17 +86,19 @@ from __future__ import annotations
 import numpy as np
 import jax.numpy as jnp
 
-from .. import robots
-from ..contact import ContactParams
-from ..contact import Environment, ground
-from ..optimize import costs as C
-from ..optimize import constraints as K
-from ..optimize.problem import MotionProblem
-from ._hopping import ScaledTorqueLimits
-from ..optimize.sequence import MotionSequence
 from ..analysis.criteria import evaluate_criteria
+from ..contact import ContactParams, Environment, ground
+from ..optimize import constraints as K, costs as C
+from ..optimize.constraints import ScaledTorqueLimits
+from ..optimize.guesses import keyframe_guess
+from ..optimize.problem import MotionProblem
+from ..optimize.sequence import MotionSequence
+from . import robots
+from .planar import criterion, hold_test
 
-__all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q"]
+
+__all__ = ["tumbler", "tumbler_segment", "CONTACT", "SEGMENTS", "start_q", "handstand_q", "standing_q",
+           "env_contact"]
 
 #: smooth contact parameters (see the module docstring)
 CONTACT = dict(stiffness=5e3, damping=100.0, d_on=0.01, d_off=0.0, friction=0.8, v_max=0.1, eps=0.01)
@@ -145,7 +147,8 @@ def handstand_q(model):
     return np.array([0.0, z, np.pi, 0.0, 0.0])
 
 
-def _env_contact():
+def env_contact():
+    """The tumbler's world: flat ground and its `ContactParams` (`CONTACT`)."""
     return Environment([ground()]), ContactParams(**CONTACT)
 
 
@@ -188,7 +191,7 @@ def _rest_terms(stage=1, pitch_tol="ptol", pitch_eq=False):
 #: shoulder would need 13.5 N m to stop the tipping in time)
 HANDSTAND_T, HANDSTAND_N_CTRL = 2.5, 15
 #: the default initial guess of the handstand, (time s, (hip, shoulder) rad) with
-#: smoothstep ramps between (see `_hopping.keyframe_guess`): a kick. Fold at the hip
+#: smoothstep ramps between (see `cstorm.optimize.keyframe_guess`): a kick. Fold at the hip
 #: (legs forward, -0.8 rad) while the arms swing forward and down to the floor
 #: (shoulder 2.5) by 0.7 s, swing the legs back and up over the hands while the arms go
 #: overhead (hip -0.3, shoulder -0.2 at 1.6 s), straighten by 2.0 s and hold. Chosen
@@ -373,10 +376,9 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         handstand ``"bridge"`` (`BRIDGE_KEYFRAMES` with `bridge_nodes` as the nodes' guess;
         needs ``shooting > 1``) with the terminal pitch at pi from the first stage.
     """
-    from ._hopping import keyframe_guess
 
     model = robots.tumbler(feet=True) if model is None else model
-    env, contact = _env_contact()
+    env, contact = env_contact()
     # the handstand's contact derivatives by plain autodiff: its plan was verified with
     # them. The analytic rule (the default, and the other segments') gives the same
     # Jacobians to 1e-14, yet SLSQP's path through the handstand's plan splits at its
@@ -417,7 +419,7 @@ def tumbler_segment(name: str, *, n_ctrl: int | None = None, dt: float | None = 
         p.record_grid_only = False
         if guess == "bridge":
             T_ = p.t_final
-            p.x0 = p._initial_guess(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
+            p.x0 = p.initial_x(keyframe_guess(BRIDGE_KEYFRAMES, T_, ("hip", "shoulder")))
             p.node_guess = bridge_nodes(model, T_)
             p.solve_options["schedule"] = _plan((np.pi,))
     elif name == "roll":
@@ -491,8 +493,6 @@ class _RestCriteria:
         self.spec, self.problem = spec, problem
 
     def __call__(self, sol):
-        from ._planar import criterion, hold_test
-
         out = evaluate_criteria(self.spec, self.problem.model, sol)
         dev, _, vend = hold_test(self.problem, sol, HOLD["duration"])
         out["holds still"] = criterion(dev, HOLD["pitch_tol"], dev <= HOLD["pitch_tol"])

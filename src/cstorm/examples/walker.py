@@ -1,58 +1,6 @@
-"""A planar biped, Gymnasium's ``Walker2d-v5`` (``walker2d.xml``) rebuilt with
-`ModelBuilder` with the same numbers, and a periodic walking problem: one gait cycle
-(two steps) at a chosen average speed, no contact schedule.
-
-Why a builder model and not ``cs.load_mjcf(walker2d.xml)``: the problem must run from a
-plain install (MuJoCo and Gymnasium are test extras). ``tests/test_walker.py`` loads
-Gymnasium's ``walker2d.xml`` with MuJoCo and with ``cs.load_mjcf`` and checks that this
-model's mass matrix, bias forces and passive forces agree with MuJoCo's at random states
-(to ~1e-12).
-
-Model (`walker_model`; every number is Gymnasium's unless said otherwise)
----------------------------------------------------------------------------
-Seven capsules, a torso and two legs of thigh - shin - foot, in the x-z plane; gravity
-9.81 m/s^2 along -z. Masses and inertias are MuJoCo's ``inertiafromgeom``: uniform density
-1000 kg/m^3 over each capsule (a cylinder plus two hemispheres, `capsule_inertia`).
-
-| link (ours)       | Gymnasium body    | radius | axis length | mass (kg) | axis       |
-|-------------------|-------------------|--------|-------------|-----------|------------|
-| torso             | torso             | 0.05 m | 0.40 m      | 3.6652    | vertical   |
-| thigh_r, thigh_l  | thigh, thigh_left | 0.05 m | 0.45 m      | 4.0579    | vertical   |
-| shin_r, shin_l    | leg, leg_left     | 0.04 m | 0.50 m      | 2.7814    | vertical   |
-| foot_r, foot_l    | foot, foot_left   | 0.06 m | 0.20 m      | 3.1667    | horizontal |
-
-Total 23.677 kg. Principal inertias about the capsule centres (kg m^2): torso (0.069246,
-0.069246, 0.004451), thigh (0.093299, 0.093299, 0.004941), shin (0.072303, 0.072303,
-0.002182), foot (0.023998, 0.023998, 0.005374) (the last entry about the capsule axis).
-
-Frames and joints at ``q = 0`` (standing straight, torso centre at ``root_z`` above the
-ground, world x forward; cstorm puts each link frame at its joint's anchor):
-
-- passive planar base on the torso centre: ``root_x`` (prismatic x), ``root_z``
-  (prismatic z), ``root_pitch`` (revolute about +y; a positive pitch tips the torso's top
-  forward, +x), Gymnasium's ``rootx, rootz, rooty`` (``q`` equals MuJoCo's ``qpos``;
-  ``root_z`` is the torso centre's height). No armature, damping or limits on the base.
-- ``hip_r`` / ``hip_l`` (Gymnasium ``thigh_joint`` / ``thigh_left_joint``): torso ->
-  thigh at the torso's lower end-sphere centre (0, 0, -0.2); thigh capsule centre 0.225 m
-  below the hip.
-- ``knee_r`` / ``knee_l`` (``leg_joint`` / ``leg_left_joint``): thigh -> shin, 0.45 m
-  below the hip; shin capsule centre 0.25 m below the knee.
-- ``ankle_r`` / ``ankle_l`` (``foot_joint`` / ``foot_left_joint``): shin -> foot, 0.5 m
-  below the knee (the shin capsule's lower end-sphere centre). The foot capsule lies along
-  x at ankle height from the ankle forward: heel end-sphere centre at the ankle, toe
-  end-sphere centre 0.2 m ahead; foot CoM 0.1 m ahead of the ankle.
-- The six hinges turn about -y (MuJoCo ``axis="0 -1 0"``): a positive angle turns the
-  child's points below the joint forward (+x) and its points ahead of the joint up. So
-  a hip at a negative angle swings its thigh back, a knee bends by going negative (the
-  shin swings back) and a positive ankle angle lifts the toe (dorsiflexion). Ranges
-  (Gymnasium's): hips [-150, 0] deg, knees [-150, 0] deg, ankles [-45, 45] deg. ``q = 0``
-  is the upper limit of hips and knees: a hip cannot swing its thigh forward of the
-  torso's axis, so a walking robot leans its torso forward (positive pitch).
-- Armature 0.01 kg m^2 and viscous damping 0.1 N m s/rad on each hinge (Gymnasium's
-  ``<default>``; the motor also supplies the damping torque). Effort limit 100 N m
-  (motor ``gear = 100``, ``ctrlrange = [-1, 1]``). No velocity limits (Gymnasium has none).
-- Standing straight, the ankles are 1.15 m below the torso centre and the foot capsules'
-  undersides 1.21 m below it (Gymnasium starts the torso at 1.25 m).
+"""A periodic walking problem for the planar biped of Gymnasium's ``Walker2d-v5``,
+`cs.robots.walker_model` (every number of the model is there): one gait cycle (two
+steps) at a chosen average speed, no contact schedule.
 
 Contact (`walker_contact`, not Gymnasium's soft constraints): cstorm's smooth penalty law
 on the two end spheres of every capsule against the ground (14 contact points). DESIGN.md's
@@ -79,83 +27,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import jax
-import jax.numpy as jnp
-from jax.scipy.special import logsumexp
 
-from ..errors import ProblemError
-from ..geometry.shapes import Capsule
-from ..model.builder import ModelBuilder
-from ..optimize.constraints import Constraint
-from ..optimize.costs import resolve
-from ._planar import DENSITY, SlipPower, capsule_inertia, longest_run, trajectory_contact_d
-from ._planar import criterion as _entry
+from ..contact import ContactParams, Environment, contact_labels, ground
+from ..optimize import constraints, costs
+from ..optimize.bounds import variable_bounds
+from ..optimize.constraints import SlipPower, SwingClearance
+from ..optimize.problem import MotionProblem
+from .planar import criterion as _entry, longest_run, trajectory_contact_d
+from .robots import WALKER, walker_model
 
-# (radius, full axis length) of each capsule; Gymnasium's size="radius half-length"
-WALKER = dict(
-    torso=dict(radius=0.05, length=0.40),
-    thigh=dict(radius=0.05, length=0.45),
-    shin=dict(radius=0.04, length=0.50),
-    foot=dict(radius=0.06, length=0.20),
-    foot_offset=0.10,  # foot capsule centre ahead of the ankle, m
-    hip=dict(lower=-math.radians(150), upper=0.0),
-    knee=dict(lower=-math.radians(150), upper=0.0),
-    ankle=dict(lower=-math.radians(45), upper=math.radians(45)),
-    effort=100.0,  # N m: gear 100 x ctrlrange 1
-    armature=0.01,  # kg m^2
-    damping=0.1,  # N m s/rad
-)
 
 SIDES = ("r", "l")
 ACTIVE = ("hip_r", "knee_r", "ankle_r", "hip_l", "knee_l", "ankle_l")
-
-
-def walker_model(armature: float | None = None, damping: float | None = None, effort: float | None = None,
-                 hip_upper: float | None = None):
-    """The Gymnasium walker (see the module docstring for every number). Keyword
-    arguments override Gymnasium's armature (kg m^2), damping (N m s/rad), effort limit
-    (N m) and the hips' upper limit (rad, Gymnasium 0). Joints: ``root_x, root_z,
-    root_pitch, hip_r, knee_r, ankle_r, hip_l, knee_l, ankle_l`` (MuJoCo's order); geoms
-    ``torso_geom``, ``{thigh,shin,foot}_{r,l}_geom``; frames ``heel_{r,l}``,
-    ``toe_{r,l}`` (the foot capsules' end-sphere centres)."""
-    P = WALKER
-    arm = P["armature"] if armature is None else float(armature)
-    damp = P["damping"] if damping is None else float(damping)
-    eff = P["effort"] if effort is None else float(effort)
-    hinge = dict(axis=(0.0, -1.0, 0.0), armature=arm, damping=damp, effort=eff)
-    hip = dict(P["hip"])
-    if hip_upper is not None:
-        hip["upper"] = float(hip_upper)
-    b = ModelBuilder("walker", source="<cstorm.examples.walker.walker_model>")
-    t, th, sh, ft = P["torso"], P["thigh"], P["shin"], P["foot"]
-
-    m, I = capsule_inertia(t["radius"], t["length"])
-    b.add_link("torso", mass=m, inertia=I)
-    b.add_geom("torso", Capsule(t["radius"], t["length"]), name="torso_geom")
-    for s in SIDES:
-        m, I = capsule_inertia(th["radius"], th["length"])
-        c = (0.0, 0.0, -th["length"] / 2)
-        b.add_link(f"thigh_{s}", mass=m, com=c, inertia=I)
-        b.add_joint(f"hip_{s}", "revolute", "torso", f"thigh_{s}", xyz=(0.0, 0.0, -t["length"] / 2), **hinge, **hip)
-        b.add_geom(f"thigh_{s}", Capsule(th["radius"], th["length"]), xyz=c, name=f"thigh_{s}_geom")
-
-        m, I = capsule_inertia(sh["radius"], sh["length"])
-        c = (0.0, 0.0, -sh["length"] / 2)
-        b.add_link(f"shin_{s}", mass=m, com=c, inertia=I)
-        b.add_joint(f"knee_{s}", "revolute", f"thigh_{s}", f"shin_{s}", xyz=(0.0, 0.0, -th["length"]), **hinge,
-                    **P["knee"])
-        b.add_geom(f"shin_{s}", Capsule(sh["radius"], sh["length"]), xyz=c, name=f"shin_{s}_geom")
-
-        m, (Ip, _, Ia) = capsule_inertia(ft["radius"], ft["length"])
-        c = (P["foot_offset"], 0.0, 0.0)
-        b.add_link(f"foot_{s}", mass=m, com=c, inertia=(Ia, Ip, Ip))  # capsule axis along x
-        b.add_joint(f"ankle_{s}", "revolute", f"shin_{s}", f"foot_{s}", xyz=(0.0, 0.0, -sh["length"]), **hinge,
-                    **P["ankle"])
-        b.add_geom(f"foot_{s}", Capsule(ft["radius"], ft["length"]), xyz=c, rpy=(0.0, -math.pi / 2, 0.0),
-                   name=f"foot_{s}_geom")
-        b.add_frame(f"heel_{s}", f"foot_{s}", xyz=(P["foot_offset"] - ft["length"] / 2, 0.0, 0.0))
-        b.add_frame(f"toe_{s}", f"foot_{s}", xyz=(P["foot_offset"] + ft["length"] / 2, 0.0, 0.0))
-    return b.build(floating_base="planar")
 
 
 def standing_height():
@@ -167,8 +50,6 @@ def standing_height():
 
 def walker_contact(stiffness=4e4, damping=800.0, d_on=0.01, d_off=0.0, friction=0.9, v_max=0.1):
     """The walker's `ContactParams` (see the module docstring for the choice)."""
-    from ..contact import ContactParams
-
     return ContactParams(stiffness=stiffness, damping=damping, d_on=d_on, d_off=d_off, friction=friction,
                          v_max=v_max)
 
@@ -176,63 +57,6 @@ def walker_contact(stiffness=4e4, damping=800.0, d_on=0.01, d_off=0.0, friction=
 # ---------------------------------------------------------------------------------------
 # The walking problem
 # ---------------------------------------------------------------------------------------
-def _contact_d(ctx, samples):
-    """(S, k) contact distances at the constraint-grid samples (recorded by the rollout,
-    else recomputed from the sampled states)."""
-    c = samples.get("contact")
-    if c is not None:
-        return c.d
-    from ..contact import contact_forces
-
-    p = ctx.problem
-    return jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
-
-
-class SwingClearance(Constraint):
-    """Every foot swings: for each group of robot geoms (``groups``: a list of lists of
-    geom names, e.g. ``[["foot_r_geom"], ["foot_l_geom"]]``), at some instant of the
-    constraint grid all the group's contact points are at least ``clearance`` (m, or a
-    problem-parameter name) above the obstacles. No schedule: the instant is not given.
-    Smooth: per group, ``tau_time logsumexp_s(c_s / tau_time)`` (a soft max over the
-    samples) of ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a soft min over the
-    group's points at sample ``s``); the soft min is at most ``tau_points ln k`` below the
-    true min, the soft max at most ``tau_time ln S`` above the true max. One inequality
-    per group: ``soft_clearance - clearance >= 0``."""
-
-    kind = "ineq"
-
-    def __init__(self, groups, clearance, tau_points=1e-3, tau_time=2e-3, stage=0, name="swing"):
-        self.groups = [[g] if isinstance(g, str) else list(g) for g in groups]
-        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
-        self.kind, self.stage, self.name = "ineq", int(stage), name
-
-    def check(self, problem):
-        from ..contact import contact_labels
-        from ..contact import Environment, ground
-
-        env = problem.env if problem.env is not None else Environment([ground()])
-        labels = contact_labels(problem.model, env)
-        self._idx = []
-        for g in self.groups:
-            pts = [i for i, lab in enumerate(labels) if lab[0] in g]
-            if not pts:
-                raise ProblemError(f"SwingClearance: no contact points on geoms {g}; geoms with contact points: "
-                                   f"{sorted({lab[0] for lab in labels})}")
-            self._idx.append(np.array(pts, int))
-
-    def values(self, ctx, end, samples):
-        d = _contact_d(ctx, samples)
-        out = []
-        for idx in self._idx:
-            c = -self.tau_points * logsumexp(-d[:, idx] / self.tau_points, axis=1)
-            out.append(self.tau_time * logsumexp(c / self.tau_time))
-        return jnp.stack(out) - resolve(self.clearance, ctx.params)
-
-    def describe(self):
-        return {"type": "SwingClearance", "groups": self.groups, "clearance": self.clearance,
-                "tau_points": self.tau_points, "tau_time": self.tau_time, "stage": self.stage}
-
-
 def foot_flat_ankle(pitch, hip, knee):
     """The ankle angle (rad) that keeps the foot level, given the base pitch and the hip
     and knee angles: the hinges turn about -y and the pitch about +y, so the foot's pitch
@@ -347,10 +171,6 @@ def walker(speed: float = 0.8, period: float = 1.2, n_ctrl: int = 9, dt: float =
 
     Attributes added: ``problem.success_criteria(solution) -> dict`` (`walker_criteria`).
     """
-    from ..contact import Environment, ground
-    from ..optimize import costs, constraints
-    from ..optimize.problem import MotionProblem
-
     model = walker_model(hip_upper=hip_upper)
     contact = walker_contact() if contact is None else contact
     env = Environment([ground()], pairs=None if contact_geoms is None else [(g, "ground") for g in contact_geoms])
@@ -393,7 +213,6 @@ def walker(speed: float = 0.8, period: float = 1.2, n_ctrl: int = 9, dt: float =
     )
     prob.half_cycle = bool(half_cycle)
     # variable bounds (see the docstring): splines within the limits, start offsets boxed
-    from ..optimize.solve import variable_bounds
 
     lb, ub = variable_bounds(prob)
     n0 = prob.n_spline_vars
@@ -437,8 +256,6 @@ def full_cycle(problem, solution):
     half-cycle solution the second step is the first with the legs exchanged, shifted
     forward by the step length and in time by the step duration (its first sample, the
     first step's last, is not repeated); contact points are exchanged foot for foot."""
-    from ..contact import contact_labels
-
     tr = solution.trajectory
     t, q, v = (np.asarray(tr[k]) for k in ("t", "q", "v"))
     d = trajectory_contact_d(tr, "walker criteria")
@@ -471,8 +288,6 @@ def walker_criteria(problem, solution, *, speed, d_on, periodic_tol=1e-6, speed_
     - ``max_penetration``: the deepest any contact point went below the ground (m) <=
       ``max_penetration`` (no feet through the floor).
     """
-    from ..contact import contact_labels
-
     tr = solution.trajectory
     q, v, t = (np.asarray(tr[k]) for k in ("q", "v", "t"))
     ix = problem.model.joint_q("root_x").start

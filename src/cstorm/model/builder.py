@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from ..errors import ModelError
 from ..geometry.shapes import Shape
 from .inertia import INERTIA_CHECKS, judge_bodies, link_inertia
-from .joints import JOINT_TYPES, Free, Prismatic, Revolute
+from .joints import JOINT_TYPES, Ball, Free, Prismatic, Revolute
 from .model import Model
 
 
@@ -445,8 +445,6 @@ def _np_inertia_parts(I):
 
 def _np_joint_transform(joint, axis, qj):
     """(R, p) of a joint's displacement (joint frame from child frame), numpy."""
-    from .joints import Ball, Revolute
-
     def quat_R(w, x, y, z):
         n = np.sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w / n, x / n, y / n, z / n
@@ -469,8 +467,6 @@ def _np_joint_transform(joint, axis, qj):
 
 def _np_motion_subspace(joint, axis):
     """(6, joint.nv) motion subspace in the joint's child frame, numpy (`Joint.motion_subspace`)."""
-    from .joints import Ball
-
     a = np.asarray(axis, dtype=float)
     if isinstance(joint, Revolute):
         return np.concatenate([a, np.zeros(3)])[:, None]

@@ -61,6 +61,7 @@ from ..geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
 from .builder import ModelBuilder
 from .joints import Free
 from .model import Model
+from .urdf import parse_xml
 
 __all__ = ["load_mjcf", "unsupported", "qvel_from_v", "v_from_qvel", "qacc_from_a", "tau_from_qfrc"]
 
@@ -120,8 +121,6 @@ def check_asset_paths(text, source: str, base_dir: str, asset_dirs=(), assets=No
     checked too. The XML is parsed with DTDs refused (`cstorm.model.urdf.parse_xml`).
     Files given in ``assets`` (in memory) are not looked up on disk. Raises `ModelError`
     naming the file, line and element."""
-    from .urdf import parse_xml
-
     seen = set() if _seen is None else _seen
     root, lines = parse_xml(text, source)
     roots = [base_dir] + [os.fspath(d) for d in asset_dirs]

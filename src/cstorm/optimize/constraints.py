@@ -18,20 +18,30 @@ Ready-made: `JointLimits` (position and velocity limits from the model, sampled)
 ``t_final``, equality or bounds), `ContactDistance` (contact points clear of the
 obstacles in a time window, e.g. a flight phase), `Periodic` (final state = start
 state, for gait cycles with ``MotionProblem(free_initial=...)``), `AverageSpeed`,
-`TerminalConstraint` and `PathConstraint` (user JAX callables).
+`TerminalConstraint` and `PathConstraint` (user JAX callables). For robots that leave
+the ground: `FlightClearance` and `SwingClearance` (a flight or swing phase somewhere in
+the motion, no schedule), `AtRest` (the floating base ends at rest), `ForwardDistance`,
+`PitchBound`, `ScaledTorqueLimits` (motor limits as O(1) ratios) and `SlipPower` (no
+skating).
 """
 
 from __future__ import annotations
 
+import fnmatch
+
 import numpy as np
 import jax
 import jax.numpy as jnp
+from jax.scipy.special import logsumexp
 
+from ..contact import Environment, contact_forces, contact_labels, ground
 from ..errors import ProblemError
-from .costs import joint_error, resolve, _jsonable
+from .costs import joint_dofs, joint_error, jsonable, resolve
 
-__all__ = ["Constraint", "JointLimits", "TorqueLimits", "window_index", "ks_max", "TerminalState", "ContactDistance", "Periodic",
-           "AverageSpeed", "TerminalConstraint", "PathConstraint"]
+__all__ = ["Constraint", "JointLimits", "TorqueLimits", "window_index", "ks_max", "TerminalState", "ContactDistance",
+           "Periodic", "AverageSpeed", "TerminalConstraint", "PathConstraint", "soft_clearance",
+           "sampled_contact_distances", "FlightClearance", "SwingClearance", "AtRest", "ForwardDistance", "PitchBound",
+           "ScaledTorqueLimits", "SlipPower"]
 
 
 class Constraint:
@@ -192,8 +202,7 @@ class TorqueLimits(Constraint):
         _set_common(self, "ineq", stage, name)
 
     def check(self, problem):
-        from .costs import _joint_dofs
-        self._idx = _joint_dofs(problem, self.joints, problem.layout.va_idx)
+        self._idx = joint_dofs(problem, self.joints, problem.layout.va_idx)
         if self.limits is None:
             lim = np.asarray(problem.model.effort_limit)[self._idx]
             if not np.all(np.isfinite(lim)):
@@ -249,10 +258,10 @@ class TorqueLimits(Constraint):
         return jnp.concatenate([up.ravel(), dn.ravel()])
 
     def describe(self):
-        d = {"type": "TorqueLimits", "limits": _jsonable(self.limits), "joints": self.joints, "stage": self.stage}
+        d = {"type": "TorqueLimits", "limits": jsonable(self.limits), "joints": self.joints, "stage": self.stage}
         # only when used: hashes of earlier problems stay the same
         if self.factor != 1.0:
-            d["factor"] = _jsonable(self.factor)
+            d["factor"] = jsonable(self.factor)
         if self.normalized:
             d["normalized"] = True
         if self.dense:
@@ -303,10 +312,10 @@ class TerminalState(Constraint):
         return self.name or f"TerminalState({self.joint})"
 
     def describe(self):
-        d = {"type": "TerminalState", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
+        d = {"type": "TerminalState", "joint": self.joint, "q": jsonable(self.q), "v": jsonable(self.v),
              "kind": self.kind, "stage": self.stage}
         if self.a is not None:  # only when used: problem hashes of earlier problems stay the same
-            d["a"] = _jsonable(self.a)
+            d["a"] = jsonable(self.a)
         return d
 
 
@@ -343,10 +352,6 @@ class ContactDistance(Constraint):
         _set_common(self, "ineq", stage, name)
 
     def check(self, problem):
-        import fnmatch
-
-        from ..contact import contact_labels
-
         if problem.env is None:
             raise ProblemError("ContactDistance: the problem has no environment (MotionProblem(env=..., contact=...))")
         if self.window is not None:
@@ -401,10 +406,10 @@ class ContactDistance(Constraint):
         return self.name or "ContactDistance"
 
     def describe(self):
-        out = {"type": "ContactDistance", "min_distance": _jsonable(self.min_distance), "window": self.window,
+        out = {"type": "ContactDistance", "min_distance": jsonable(self.min_distance), "window": self.window,
                "geoms": self.geoms, "stage": self.stage}
         if self.max_distance is not None:
-            out["max_distance"] = _jsonable(self.max_distance)
+            out["max_distance"] = jsonable(self.max_distance)
         return out
 
 
@@ -505,7 +510,7 @@ class AverageSpeed(Constraint):
         return self.name or f"AverageSpeed({self.joint})"
 
     def describe(self):
-        return {"type": "AverageSpeed", "speed": _jsonable(self.speed), "joint": self.joint, "kind": self.kind,
+        return {"type": "AverageSpeed", "speed": jsonable(self.speed), "joint": self.joint, "kind": self.kind,
                 "stage": self.stage}
 
 
@@ -536,3 +541,263 @@ class PathConstraint(Constraint):
     def values(self, ctx, end, samples):
         f = lambda t, q, v, a, tau: jnp.atleast_1d(self.fn(t, q, v, a, tau, ctx.params))
         return jax.vmap(f)(samples["t"], samples["q"], samples["v"], samples["a"], samples["tau"]).ravel()
+
+
+# ---------------------------------------------------------------------------------------
+# Terms for robots that leave the ground: flight and swing phases without a schedule, the
+# floating base's landing, distance and tilt, normalized motor limits, no skating
+# ---------------------------------------------------------------------------------------
+def soft_clearance(d, tau_points, tau_time):
+    """Smooth "highest clearance reached": ``tau_time logsumexp_s(c_s / tau_time)`` with
+    ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a smooth min over the contact
+    points at sample ``s``). ``d``: (S, k) signed distances, m; returns a scalar, m. The
+    smooth min is at most ``tau_points ln k`` below the true min; the smooth max at most
+    ``tau_time ln S`` above the true max (about ``tau_time ln n`` when ``n`` samples are
+    near the top)."""
+    c = -tau_points * logsumexp(-d / tau_points, axis=1)
+    return tau_time * logsumexp(c / tau_time)
+
+
+def sampled_contact_distances(ctx, samples):
+    """(S, k) signed contact distances (m) at the constraint-grid samples: the rollout's
+    contact data when the samples carry it, else recomputed from the sampled states with
+    `cstorm.contact_forces` (the problem's ``env`` and ``contact``)."""
+    c = samples.get("contact")
+    if c is not None and hasattr(c, "d"):
+        return c.d
+    p = ctx.problem
+    return jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
+
+
+class FlightClearance(Constraint):
+    """A flight phase, without saying when: at some sample of the constraint grid every
+    contact point is at least ``clearance`` (m, or a problem-parameter name) above the
+    obstacles, through the smooth max-over-time of the smooth min-over-points of the
+    contact distances (`soft_clearance`, sharpness ``tau_points`` and ``tau_time``, m).
+    One inequality ``scale (soft_clearance - clearance) >= 0`` (``scale`` 1/m, default
+    100: the value in cm, so that its sensitivities are of the order of the other
+    constraints'). Needs a problem with contact (``env``/``contact``); the distances are
+    `sampled_contact_distances`. The term reads the whole trajectory at once (``ddp =
+    None``)."""
+
+    kind = "ineq"
+
+    def __init__(self, clearance, tau_points=1e-3, tau_time=2e-3, scale=100.0, stage=0, name="flight"):
+        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
+        self.scale = float(scale)
+        self.stage, self.name = int(stage), name
+
+    def values(self, ctx, end, samples):
+        if ctx.problem.env is None:  # (MotionProblem runs check() before it stores env)
+            raise ProblemError("FlightClearance: the problem has no environment/contact model")
+        peak = soft_clearance(sampled_contact_distances(ctx, samples), self.tau_points, self.tau_time)
+        return jnp.atleast_1d(self.scale * (peak - resolve(self.clearance, ctx.params)))
+
+    def describe(self):
+        return {"type": "FlightClearance", "clearance": self.clearance, "tau_points": self.tau_points,
+                "tau_time": self.tau_time, "scale": self.scale, "stage": self.stage}
+
+
+class SwingClearance(Constraint):
+    """Every foot swings: for each group of robot geoms (``groups``: a list of lists of
+    geom names, e.g. ``[["foot_r_geom"], ["foot_l_geom"]]``), at some sample of the
+    constraint grid all the group's contact points are at least ``clearance`` (m, or a
+    problem-parameter name) above the obstacles. No schedule: the instant is not given.
+    Per group, `soft_clearance` of the group's columns of `sampled_contact_distances`
+    (sharpness ``tau_points``, ``tau_time``, m). One inequality per group, in group order:
+    ``soft_clearance - clearance >= 0`` (m). Without an ``env`` the points are those
+    against the ground. The term reads the whole trajectory at once (``ddp = None``)."""
+
+    kind = "ineq"
+
+    def __init__(self, groups, clearance, tau_points=1e-3, tau_time=2e-3, stage=0, name="swing"):
+        self.groups = [[g] if isinstance(g, str) else list(g) for g in groups]
+        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
+        self.kind, self.stage, self.name = "ineq", int(stage), name
+
+    def check(self, problem):
+        env = problem.env if problem.env is not None else Environment([ground()])
+        labels = contact_labels(problem.model, env)
+        self._idx = []
+        for g in self.groups:
+            pts = [i for i, lab in enumerate(labels) if lab[0] in g]
+            if not pts:
+                raise ProblemError(f"SwingClearance: no contact points on geoms {g}; geoms with contact points: "
+                                   f"{sorted({lab[0] for lab in labels})}")
+            self._idx.append(np.array(pts, int))
+
+    def values(self, ctx, end, samples):
+        d = sampled_contact_distances(ctx, samples)
+        peaks = [soft_clearance(d[:, idx], self.tau_points, self.tau_time) for idx in self._idx]
+        return jnp.stack(peaks) - resolve(self.clearance, ctx.params)
+
+    def describe(self):
+        return {"type": "SwingClearance", "groups": self.groups, "clearance": self.clearance,
+                "tau_points": self.tau_points, "tau_time": self.tau_time, "stage": self.stage}
+
+
+class AtRest(Constraint):
+    """The passive DoFs (the floating base) end at rest: ``v_p(T) = 0`` and, with
+    ``acceleration=True``, ``a_p(T) = 0`` (so the final state is a static equilibrium, not
+    the turning point of a bounce); ``2 n_passive`` equalities (m/s, rad/s, m/s^2, rad/s^2;
+    accelerations multiplied by ``accel_scale`` s), velocities first. With ``tol`` (a
+    number or a problem parameter's name) they become the inequalities ``|value| <= tol``
+    instead, as ``(tol - e, tol + e)`` (a landing tolerance that a solve plan can tighten:
+    switching on equalities that are far from satisfied makes SLSQP take radian-sized
+    steps); ``accel_tol`` (likewise) gives the accelerations their own tolerance, ``|a_p|
+    <= accel_tol`` (m/s^2, rad/s^2; the values still multiplied by ``accel_scale``), values
+    ``(tol - v, tol + v, s (accel_tol - a), s (accel_tol + a))``. Evaluated at the final
+    node by DDP (``ddp = "end"``)."""
+
+    kind = "eq"
+    ddp = "end"
+
+    def __init__(self, acceleration=True, accel_scale=0.1, tol=None, stage=0, name="at_rest", accel_tol=None):
+        self.acceleration, self.accel_scale, self.tol = bool(acceleration), float(accel_scale), tol
+        self.accel_tol = accel_tol
+        if accel_tol is not None and (tol is None or not self.acceleration):
+            raise ProblemError("AtRest: accel_tol needs acceleration=True and a velocity tol")
+        self.kind = "eq" if tol is None else "ineq"
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        self._vp = np.array(problem.layout.vp_idx, int)
+        if not len(self._vp):
+            raise ProblemError("AtRest: the problem has no passive DoFs")
+
+    def values(self, ctx, end, samples):
+        v = end["v"][self._vp]
+        if self.accel_tol is not None:
+            tv, ta = resolve(self.tol, ctx.params), resolve(self.accel_tol, ctx.params)
+            a = end["a"][self._vp]
+            return jnp.concatenate([tv - v, tv + v, self.accel_scale * (ta - a), self.accel_scale * (ta + a)])
+        out = [v]
+        if self.acceleration:
+            out.append(self.accel_scale * end["a"][self._vp])
+        e = jnp.concatenate(out)
+        if self.tol is None:
+            return e
+        tol = resolve(self.tol, ctx.params)
+        return jnp.concatenate([tol - e, tol + e])
+
+    def describe(self):
+        d = {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
+             "tol": self.tol, "stage": self.stage}
+        if self.accel_tol is not None:  # only when used: earlier problems' hashes stay the same
+            d["accel_tol"] = self.accel_tol
+        return d
+
+
+def _q_start(problem, joint, who):
+    """The first configuration index of ``joint``; `ProblemError` (prefixed ``who``) if the
+    model has no such joint."""
+    if joint not in problem.model.joint_names:
+        raise ProblemError(f"{who}: no joint named {joint!r}")
+    return problem.model.joint_q(joint).start
+
+
+class ForwardDistance(Constraint):
+    """The motion covers a distance: ``scale (q_j(T) - q_j(0) - distance) >= 0`` for the
+    prismatic base joint ``joint`` (default ``root_x``; ``distance`` in m, a
+    problem-parameter name allowed; ``scale`` 1/m, default 10). One inequality. Evaluated
+    at the final node by DDP (``ddp = "end"``)."""
+
+    kind = "ineq"
+    ddp = "end"
+
+    def __init__(self, distance, joint="root_x", scale=10.0, stage=0, name="forward"):
+        self.distance, self.joint, self.scale = distance, joint, float(scale)
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        self._i = _q_start(problem, self.joint, "ForwardDistance")
+
+    def values(self, ctx, end, samples):
+        return jnp.atleast_1d(self.scale * (end["q"][self._i] - samples["q"][0, self._i]
+                                            - resolve(self.distance, ctx.params)))
+
+    def describe(self):
+        return {"type": "ForwardDistance", "distance": self.distance, "joint": self.joint, "stage": self.stage}
+
+
+class PitchBound(Constraint):
+    """``|q_j - center| <= bound`` for the base's pitch joint ``joint`` (default
+    ``root_pitch``; ``center`` and ``bound`` rad, ``bound`` may name a problem parameter)
+    on the constraint grid: keeps the robot from tipping over during the motion (and gives
+    the optimizer a gradient against falling long before the end). ``2 S`` inequalities,
+    ``(bound - e, bound + e)`` over the ``S`` samples. Evaluated at every node by DDP
+    (``ddp = "path"``)."""
+
+    kind = "ineq"
+    ddp = "path"
+
+    def __init__(self, bound, joint="root_pitch", center=0.0, stage=0, name="pitch_bound"):
+        self.bound, self.joint, self.center = bound, joint, float(center)
+        self.stage, self.name = int(stage), name
+
+    def check(self, problem):
+        self._i = _q_start(problem, self.joint, "PitchBound")
+
+    def values(self, ctx, end, samples):
+        e = samples["q"][:, self._i] - self.center
+        b = resolve(self.bound, ctx.params)
+        return jnp.concatenate([b - e, b + e])
+
+    def describe(self):
+        return {"type": "PitchBound", "bound": self.bound, "joint": self.joint, "center": self.center,
+                "stage": self.stage}
+
+
+class ScaledTorqueLimits(TorqueLimits):
+    """``factor - |tau_i| / limit_i >= 0`` for the active joints' motors (the model's
+    effort limits, which must be finite): `TorqueLimits` with ``normalized=True``,
+    dimensionless values of order 1 like the other constraints' (SLSQP reports
+    "inequality constraints incompatible" with raw N m values of a 200 N m motor), ``2 S
+    n_active`` inequalities. ``factor`` (a number or a problem parameter's name, default
+    1) lets a solve plan start with the limits relaxed and tighten them to 1.
+    ``dense=True``: on every integration step, through a smooth max (sharpness ``rho``)
+    per window of the constraint grid (see `TorqueLimits`), not only on the grid. Bounds
+    on the controls for DDP (``ddp = "box"``)."""
+
+    def __init__(self, factor=1.0, stage=0, name="torque_limits", dense=False, rho=200.0):
+        super().__init__(stage=stage, name=name, normalized=True, dense=dense, rho=rho, factor=factor)
+
+    def check(self, problem):
+        lim = np.asarray(problem.model.effort_limit)[np.array(problem.layout.va_idx, int)]
+        if not np.all(np.isfinite(lim)):
+            raise ProblemError("ScaledTorqueLimits: the model's effort_limit is infinite for some active joints")
+        super().check(problem)
+
+    def describe(self):  # its own type name: the hashes of earlier problems stay the same
+        d = {"type": "ScaledTorqueLimits", "stage": self.stage}
+        if self.factor != 1.0:
+            d["factor"] = self.factor
+        if self.dense:
+            d.update(dense=True, rho=self.rho)
+        return d
+
+
+class SlipPower(Constraint):
+    """No skating: at every constraint-grid sample, the contacts' sliding power ``sum_k
+    N_k sqrt(|v_t,k|^2 + v_eps^2)`` (W; ``N_k`` the normal force magnitude, N, ``v_t,k``
+    the tangential velocity of contact point ``k``, m/s; ``v_eps`` m/s smooths the norm at
+    zero slip) is at most ``limit`` (W, or a problem-parameter name). ``S`` inequalities,
+    ``limit - power``. Needs the rollout's contact data at the samples. A stance foot's
+    penalty friction creeps at ~1 cm/s under body weight (~3 W); a skimming swing foot at
+    1 m/s under 40 N is 40 W. The term reads the whole trajectory at once (``ddp =
+    None``)."""
+
+    kind = "ineq"
+
+    def __init__(self, limit, v_eps=1e-3, stage=0, name="slip power"):
+        self.limit, self.v_eps, self.stage, self.name, self.kind = limit, float(v_eps), int(stage), name, "ineq"
+
+    def values(self, ctx, end, samples):
+        c = samples["contact"]
+        v, n = c.velocity, c.n
+        vt = v - jnp.sum(v * n, axis=-1, keepdims=True) * n
+        speed = jnp.sqrt(jnp.sum(vt * vt, axis=-1) + self.v_eps ** 2)
+        return resolve(self.limit, ctx.params) - jnp.sum(c.normal_magnitude * speed, axis=-1)
+
+    def describe(self):
+        return {"type": "SlipPower", "limit": self.limit, "v_eps": self.v_eps, "stage": self.stage}

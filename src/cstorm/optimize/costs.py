@@ -10,7 +10,8 @@ vectors, SI units). Numbers given as strings name problem parameters (``params=`
 
 Ready-made terms: `TorqueSquared` (the paper's default), `Power`, `StateTarget`
 (passive-state or base-pose targets, manifold-aware), `CoMTarget`, and `RunningCost` /
-`TerminalCost` for user JAX callables.
+`TerminalCost` for user JAX callables; `LandingPenalty` (a floating base's landing at
+rest, as a penalty).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import jax.numpy as jnp
 from ..dynamics.energy import center_of_mass
 from ..errors import ProblemError
 
-__all__ = ["Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost", "resolve"]
+__all__ = ["Cost", "TorqueSquared", "Power", "StateTarget", "CoMTarget", "RunningCost", "TerminalCost",
+           "LandingPenalty", "resolve", "joint_dofs", "joint_error", "jsonable"]
 
 
 def resolve(value, params):
@@ -52,7 +54,10 @@ class Cost:
         return {"type": type(self).__name__}
 
 
-def _joint_dofs(problem, joints, default):
+def joint_dofs(problem, joints, default):
+    """(k,) int: the velocity indices of ``joints`` (a joint name or a list of them) in
+    ``problem.model``, or ``default`` when ``joints`` is None. Raises `ProblemError` for
+    an unknown name."""
     if joints is None:
         return np.array(default, dtype=int)
     if isinstance(joints, str):
@@ -75,7 +80,7 @@ class TorqueSquared(Cost):
         self.weight, self.joints = weight, joints
 
     def check(self, problem):
-        self._idx = _joint_dofs(problem, self.joints, problem.layout.va_idx)
+        self._idx = joint_dofs(problem, self.joints, problem.layout.va_idx)
 
     def running(self, ctx, t, q, v, a, tau, contact):
         x = tau[self._idx]
@@ -93,7 +98,7 @@ class Power(Cost):
         self.weight, self.joints = weight, joints
 
     def check(self, problem):
-        self._idx = _joint_dofs(problem, self.joints, problem.layout.va_idx)
+        self._idx = joint_dofs(problem, self.joints, problem.layout.va_idx)
 
     def running(self, ctx, t, q, v, a, tau, contact):
         p = tau[self._idx] * v[self._idx]
@@ -138,7 +143,7 @@ class StateTarget(Cost):
         return out
 
     def describe(self):
-        return {"type": "StateTarget", "joint": self.joint, "q": _jsonable(self.q), "v": _jsonable(self.v),
+        return {"type": "StateTarget", "joint": self.joint, "q": jsonable(self.q), "v": jsonable(self.v),
                 "weight": self.weight}
 
 
@@ -155,7 +160,7 @@ class CoMTarget(Cost):
         return 0.5 * resolve(self.weight, ctx.params) * jnp.sum(e * e)
 
     def describe(self):
-        return {"type": "CoMTarget", "target": _jsonable(self.target), "weight": self.weight, "axes": self.axes}
+        return {"type": "CoMTarget", "target": jsonable(self.target), "weight": self.weight, "axes": self.axes}
 
 
 class RunningCost(Cost):
@@ -185,7 +190,36 @@ class TerminalCost(Cost):
         return {"type": "TerminalCost", "fn": getattr(self.fn, "__name__", repr(self.fn))}
 
 
-def _jsonable(x):
+def jsonable(x):
+    """A term's number, array or parameter name as JSON data (for ``describe``): None,
+    str, int, float and bool as they are, anything else a nested list of floats."""
     if x is None or isinstance(x, (str, int, float, bool)):
         return x
     return np.asarray(x, dtype=float).tolist()
+
+
+class LandingPenalty(Cost):
+    """Terminal cost ``weight/2 (|q_b(T) - q_rest|^2 + |v_p(T)|^2)`` over the base DoFs
+    ``joints`` (1-DoF joints, default ``root_z, root_pitch``: m, rad; ``q_rest``: a dict
+    joint name -> rest position) and every passive velocity (m/s, rad/s): the landing at
+    rest as a penalty, for the first stages of a solve, before `constraints.AtRest` and
+    the terminal base pose become constraints (SLSQP's linearized landing constraints
+    throw a robot that has not yet learnt to hop far from its guess). ``weight`` may name
+    a problem parameter (units of the cost per m^2)."""
+
+    def __init__(self, weight, q_rest, joints=("root_z", "root_pitch")):
+        self.weight, self.q_rest, self.joints = weight, {k: float(v) for k, v in q_rest.items()}, tuple(joints)
+
+    def check(self, problem):
+        m = problem.model
+        self._qi = np.array([m.joint_q(n).start for n in self.joints], int)
+        self._qr = np.array([self.q_rest[n] for n in self.joints])
+        self._vp = np.array(problem.layout.vp_idx, int)
+
+    def terminal(self, ctx, end):
+        e = end["q"][self._qi] - self._qr
+        v = end["v"][self._vp]
+        return 0.5 * resolve(self.weight, ctx.params) * (jnp.sum(e * e) + jnp.sum(v * v))
+
+    def describe(self):
+        return {"type": "LandingPenalty", "weight": self.weight, "q_rest": self.q_rest, "joints": list(self.joints)}

@@ -129,6 +129,12 @@ class DDPOptions:
     reg_min: float = 1e-9
     reg_max: float = 1e9
     alpha_min: float = 2.0 ** -12
+    reg_down: float = 1.0 / 3.0
+    reg_u: float = 1.0
+    project_end: bool = True
+    inner_cap: float = 1e-3
+    inner_ratio: float = 1e-2
+    reg_up_below: float = 0.5
     armijo: float = 0.1
     inner_max_iter: int = 60
     stall_window: int = 5
@@ -142,7 +148,9 @@ class DDPResult:
     constraint violation over enforced rows), ``gap`` (max dynamics gap), ``converged``,
     ``status`` (a short reason: "converged", "max_iter", "line_search", "interrupted",
     "diverged"), ``iterations``, ``history`` (per-iteration dicts), ``lam_eq``,
-    ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties)."""
+    ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties), ``worst`` (the
+    most violated row, `_worst_row`) and ``multipliers`` (every multiplier and penalty,
+    node and trajectory rows: what `solve_ocp` takes back as ``multipliers`` to warm-start)."""
 
     X: np.ndarray
     U: np.ndarray
@@ -159,6 +167,7 @@ class DDPResult:
     mu_eq: np.ndarray
     mu_in: np.ndarray
     worst: tuple = None
+    multipliers: dict = None
 
 
 def _worst_row(ev):
@@ -202,6 +211,7 @@ class _Compiled:
         self.linearize = jax.jit(self._linearize)
         self.backward = jax.jit(self._backward)
         self.forward = jax.jit(self._forward)
+        self.project = jax.jit(self._project)
 
     # -- evaluation of a trajectory --------------------------------------------------
     def _node_terms(self, Y, data, al):
@@ -297,11 +307,16 @@ class _Compiled:
             H = H + jnp.einsum("kgz,g,kgw->kzw", Ze, he, Ze) + jnp.einsum("kgz,g,kgw->kzw", Zi, hi, Zi)
         # gaps[k] = f(x_{k-1}, u_{k-1}) (-) x_k (tangent at x_k), none at the fixed start
         gaps = jnp.concatenate([jnp.zeros((1, nx), X.dtype), gaps])
+        # the final node's rows and their Jacobians in z = (dx, u): `_project` treats them
+        # as linearized constraints of the LQ subproblem
+        cfN = lambda yy: jnp.concatenate(o.constraints(yy, N, data))
+        cN = cfN(yN)
+        CN = jax.jacfwd(cfN)(yN) @ JyN
         return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
-                    luu=H[:, nx:, nx:], lux=H[:, nx:, :nx])
+                    luu=H[:, nx:, nx:], lux=H[:, nx:, :nx], cN=cN, CN=CN)
 
     # -- backward pass -------------------------------------------------------------------
-    def _backward(self, lin, U, lb, ub, reg):
+    def _backward(self, lin, U, lb, ub, reg, reg_u=1.0):
         """Riccati recursion with gaps and control boxes. Returns ``k (N+1, nu), K (N+1,
         nu, nx)``, the model terms ``d1 = sum Q_u k``, ``d2 = sum k' Q_uu k`` and ``ok``
         (every factorization succeeded)."""
@@ -312,33 +327,93 @@ class _Compiled:
         B = jnp.concatenate([lin["B"], jnp.zeros((1, nx, nu))])
         # f_{k+1} as seen from node k: the gap of node k+1 (node N has none after it)
         fn = jnp.concatenate([lin["gaps"][1:], jnp.zeros((1, nx))])
-        xs = (A, B, fn, lin["lx"], lin["lu"], lin["lxx"], lin["luu"], lin["lux"], U, lb, ub)
+        # the end rows' Jacobians enter as extra gradient columns at node N only (their
+        # value functions are linear: the same Riccati recursion, no Hessian of their own)
+        m = lin["CN"].shape[0]
+        CNt = lin["CN"].T  # (nx + nu, m)
+        N = o.n_steps
+        LX = jnp.zeros((N + 1, nx, m)).at[-1].set(CNt[:nx])
+        LU = jnp.zeros((N + 1, nu, m)).at[-1].set(CNt[nx:])
+        xs = (A, B, fn, lin["lx"], lin["lu"], lin["lxx"], lin["luu"], lin["lux"], U, lb, ub, LX, LU)
 
         def body(carry, z):
-            Vx, Vxx = carry
-            A_, B_, f_, lx, lu, lxx, luu, lux, u, lo, hi = z
+            Vx, Vxx, Wx = carry
+            A_, B_, f_, lx, lu, lxx, luu, lux, u, lo, hi, lxe, lue = z
             Vxr = Vxx + reg * eye_x
             Vx1 = Vx + Vxx @ f_  # FDDP: the value gradient at the end of the gap
             Qx = lx + A_.T @ Vx1
             Qu = lu + B_.T @ Vx1
             Qxx = lxx + A_.T @ Vxr @ A_
-            Quu = luu + B_.T @ Vxr @ B_ + reg * eye_u
+            Quu = luu + B_.T @ Vxr @ B_ + (reg_u * reg + 1e-12) * eye_u
             Qux = lux + B_.T @ Vxr @ A_
             Quu = 0.5 * (Quu + Quu.T)
             du, K_, free, ok = _box_qp(Quu, Qu, Qux, lo - u, hi - u)
             Vx_n = Qx + K_.T @ Quu @ du + K_.T @ Qu + Qux.T @ du
             Vxx_n = Qxx + K_.T @ Quu @ K_ + K_.T @ Qux + Qux.T @ K_
             Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
-            return (Vx_n, Vxx_n), (du, K_, Qu @ du, du @ Quu @ du, ok, Vx_n, Vxx_n)
+            # the end rows' columns: gains on the same free controls
+            Wux = lue + B_.T @ Wx
+            Hf = jnp.where(free[:, None] & free[None, :], Quu, eye_u)
+            ke = jnp.where(free[:, None], -jnp.linalg.solve(Hf, jnp.where(free[:, None], Wux, 0.0)), 0.0)
+            Wx_n = lxe + A_.T @ Wx + K_.T @ Quu @ ke + K_.T @ Wux + Qux.T @ ke
+            return (Vx_n, Vxx_n, Wx_n), (du, K_, ke, Qu @ du, du @ Quu @ du, ok, Vx_n, Vxx_n)
 
-        init = (jnp.zeros(nx), jnp.zeros((nx, nx)))
-        _, (k, K, d1, d2, ok, Vx, Vxx) = jax.lax.scan(body, init, xs, reverse=True)
+        init = (jnp.zeros(nx), jnp.zeros((nx, nx)), jnp.zeros((nx, m)))
+        _, (k, K, ke, d1, d2, ok, Vx, Vxx) = jax.lax.scan(body, init, xs, reverse=True)
         ok = jnp.all(ok) & jnp.all(jnp.isfinite(k)) & jnp.all(jnp.isfinite(K))
         # the gap terms of the predicted change (FDDP): sum_k Vx_k . f_k and f_k' Vxx_k f_k
         f = lin["gaps"]
         dg = jnp.sum(jnp.einsum("ki,ki->k", Vx, f))
         dq = jnp.sum(jnp.einsum("ki,kij,kj->k", f, Vxx, f))
-        return dict(k=k, K=K, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok)
+        return dict(k=k, K=K, ke=ke, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok)
+
+    # -- the end rows as constraints of the LQ subproblem ---------------------------------
+    def _project(self, lin, bw, me_N, mi_N):
+        """The step of the LQ subproblem with the final node's active rows as linearized
+        equalities ``c_N + C_N dz_N = 0`` (active: the equality rows the node enforces and
+        the violated inequality rows; the others stay penalties): the gains' columns
+        ``ke`` make the step affine in the rows' multipliers ``nu`` (``k + ke nu``); a
+        linear rollout gives ``dz_N(nu)``, and ``nu`` solves ``S nu = r`` on the active
+        rows (``S = -C_N d(dz_N)/d(nu)``, ``r = c_N + C_N dz_N(0)``; 0 elsewhere). Returns
+        the gains ``k`` (N+1, nu), the model's ``d1 = g' dz``, ``d2 = dz' H dz`` of the
+        whole step, the multipliers and the linearized residual of the end rows."""
+        o = self.ocp
+        nx, N = o.nx, o.n_steps
+        m = lin["CN"].shape[0]
+        A = jnp.concatenate([lin["A"], jnp.zeros((1, nx, nx))])
+        B = jnp.concatenate([lin["B"], jnp.zeros((1, nx, o.nu))])
+        fn = jnp.concatenate([lin["gaps"][1:], jnp.zeros((1, nx))])
+        KA = jnp.concatenate([bw["k"][:, :, None], bw["ke"]], axis=2)  # (N+1, nu, 1+m)
+
+        def body(dX, z):
+            A_, B_, f_, ka, K_ = z
+            dU = ka + K_ @ dX
+            dXn = A_ @ dX + B_ @ dU + jnp.zeros_like(dX).at[:, 0].set(f_)
+            return dXn, (dX, dU)
+
+        _, (DX, DU) = jax.lax.scan(body, jnp.zeros((nx, 1 + m)), (A, B, fn, KA, bw["K"]))
+        DZ = jnp.concatenate([DX, DU], axis=1)  # (N+1, nz, 1+m): dz_k = DZ_k [1; nu]
+        R = lin["CN"] @ DZ[-1]  # (m, 1+m)
+        r = lin["cN"] + R[:, 0]
+        n_eq = me_N.shape[0]
+        act = jnp.concatenate([me_N, mi_N & (lin["cN"][n_eq:] < 0)])
+        S = -0.5 * (R[:, 1:] + R[:, 1:].T)
+        both = act[:, None] & act[None, :]
+        scale = jnp.max(jnp.where(act, jnp.abs(jnp.diagonal(S)), 0.0)) + 1e-300
+        S = jnp.where(both, S, jnp.eye(m)) + 1e-12 * scale * jnp.eye(m)
+        nu_ = jnp.where(act, jnp.linalg.solve(S, jnp.where(act, r, 0.0)), 0.0)
+        ok = jnp.all(jnp.isfinite(nu_))
+        w = jnp.concatenate([jnp.ones(1), nu_])
+        dz = DZ @ w  # (N+1, nz)
+        g = jnp.concatenate([lin["lx"], lin["lu"]], axis=1)
+        H = jnp.concatenate([jnp.concatenate([lin["lxx"], jnp.swapaxes(lin["lux"], 1, 2)], axis=2),
+                             jnp.concatenate([lin["lux"], lin["luu"]], axis=2)], axis=1)
+        d1 = jnp.sum(g * dz)
+        d2 = jnp.einsum("ki,kij,kj->", dz, H, dz)
+        k = jnp.einsum("kuj,j->ku", KA, w)
+        resid = lin["cN"] + R @ w
+        ok = ok & jnp.all(jnp.isfinite(k)) & jnp.isfinite(d1) & jnp.isfinite(d2)
+        return dict(k=k, d1=d1, d2=d2, nu=nu_, resid=resid, ok=ok)
 
     # -- forward pass --------------------------------------------------------------------
     def _forward(self, X, U, k, K, gaps, alpha, lb, ub, data, al):
@@ -421,14 +496,16 @@ def _max(a):
 
 
 def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None, *, compiled=None, callback=None,
-              log=print):
+              log=print, multipliers=None, row_label=None):
     """Solve ``ocp`` from the (possibly infeasible) iterate ``X0`` (N+1, n_xa), ``U0``
     (N+1, nu); ``X0[0]`` is the fixed initial state. ``lb``, ``ub``: (N+1, nu) control
     bounds (``+-inf`` where unbounded). ``data``: the dynamic inputs of the OCP's
     functions. ``compiled``: a `_Compiled` of this OCP to reuse (`compile_ocp`).
     ``callback(info)``: called after every iteration with its history entry; raising
     KeyboardInterrupt stops the solve, which returns the best iterate so far. Returns
-    `DDPResult`."""
+    `DDPResult`. ``multipliers``: a `DDPResult.multipliers` to start from (default: zero
+    multipliers, penalty ``mu0``). ``row_label(kind, node, row) -> str``: names the most
+    violated row in the verbose lines (default: kind, node and row numbers)."""
     opt = options or DDPOptions()
     C = compiled or _Compiled(ocp)
     N = ocp.n_steps
@@ -436,7 +513,12 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     U = jnp.asarray(U0, jnp.float64)
     lb, ub = jnp.asarray(lb, jnp.float64), jnp.asarray(ub, jnp.float64)
     U = jnp.clip(U, lb, ub)
+    # the rows the final node enforces (`_project`)
+    me_N, mi_N = jnp.asarray(ocp.mask_eq[-1], bool), jnp.asarray(ocp.mask_in[-1], bool)
+    n_end = int(me_N.sum() + mi_N.sum())
     al = initial_multipliers(ocp, opt.mu0)
+    if multipliers is not None:
+        al = {k: jnp.asarray(multipliers[k], jnp.float64) for k in al}
     t0 = time.perf_counter()
     ev = C.evaluate(X, U, data, al)
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
@@ -450,13 +532,13 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     inner = outer = 0
     if opt.verbose:
         log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
-            f"{'time':>7}")
+            f"{'time':>7}  most violated")
     try:
         lin = None
         while it < opt.max_iter:
             if lin is None:  # (kept when the iterate and the multipliers did not change)
                 lin = C.linearize(X, U, data, al)
-            bw = C.backward(lin, U, lb, ub, reg)
+            bw = C.backward(lin, U, lb, ub, reg, opt.reg_u)
             if not bool(bw["ok"]):
                 reg *= 10.0
                 if reg > opt.reg_max:
@@ -467,7 +549,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             merit = float(ev["merit"])
             stat = -d1 / (1.0 + abs(merit))
             viol = _max(_rows(ev))
-            inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
+            inner_tol = max(opt.tol, min(opt.inner_cap, viol * opt.inner_ratio)) if viol > opt.constraint_tol else opt.tol
             # no progress: the merit changed by less than tol (relative) over the last
             # `stall_window` iterations (as SLSQP's ftol)
             taken = [h["merit"] for h in history[-3 * opt.stall_window:] if h["step"] > 0 and h["outer"] == outer]
@@ -486,17 +568,37 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 inner = 0
                 ev = C.evaluate(X, U, data, al)
                 continue
-            # line search
-            alpha, accepted = 1.0, None
-            while alpha >= opt.alpha_min:
-                tr = C.forward(X, U, bw["k"], bw["K"], lin["gaps"], alpha, lb, ub, data, al)
-                if not bool(tr["bad"]):
-                    dm = float(tr["merit"]) - merit
-                    pred = alpha * d1 + 0.5 * alpha * alpha * d2
-                    if not feasible or dm <= opt.armijo * pred or (pred > -1e-14 * (1 + abs(merit)) and dm <= 0):
-                        accepted = tr
-                        break
-                alpha *= 0.5
+            # line search: first along the step that meets the end rows' linearization
+            # (`_project`), then along the penalty-only step
+            # (its merit adds the exact penalty sigma |c_N|_1 with sigma above the rows'
+            # multipliers, as an SQP's: a step that meets the rows can raise the cost)
+            steps = []
+            if n_end and opt.project_end:
+                pj = C.project(lin, bw, me_N, mi_N)
+                if bool(pj["ok"]):
+                    sigma = 2.0 * float(jnp.max(jnp.abs(pj["nu"])))
+                    steps.append((pj["k"], float(pj["d1"]) - sigma * _end_viol(ev), float(pj["d2"]), "end"))
+            steps.append((bw["k"], d1, d2, "al"))
+            alpha, accepted, kind = 1.0, None, None
+            for k_try, e1, e2, kind in steps:
+                if feasible and e1 + 0.5 * e2 >= 0 and kind == "end":
+                    continue  # not a descent direction of the merit
+                # the end rows' step only where their linearization holds (a full or half
+                # step); otherwise the penalty-only step decides, and the regularization
+                alpha, a_min = 1.0, (0.5 if kind == "end" else opt.alpha_min)
+                while alpha >= a_min:
+                    tr = C.forward(X, U, k_try, bw["K"], lin["gaps"], alpha, lb, ub, data, al)
+                    if not bool(tr["bad"]):
+                        dm = float(tr["merit"]) - merit
+                        if kind == "end":
+                            dm += sigma * (_end_viol(tr) - _end_viol(ev))
+                        pred = alpha * e1 + 0.5 * alpha * alpha * e2
+                        if not feasible or dm <= opt.armijo * pred or (pred > -1e-14 * (1 + abs(merit)) and dm <= 0):
+                            accepted = tr
+                            break
+                    alpha *= 0.5
+                if accepted is not None:
+                    break
             it += 1
             inner += 1
             if accepted is None:
@@ -508,24 +610,34 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             else:
                 X, U = accepted["X"], accepted["U"]
                 lin = None
+                if kind == "end":
+                    # the rows now hold to first order: their multipliers become the LQ
+                    # step's (the penalties' gradient at c = 0 plus nu), so that the
+                    # penalty-only steps that follow do not pull the rows back
+                    al = _shift_end_multipliers(al, pj["nu"], ocp.n_eq)
+                    accepted = dict(accepted, **{k: v for k, v in C.evaluate(X, U, data, al).items() if k != "gaps"})
                 gap_new = float(jnp.max(jnp.linalg.norm(accepted["gaps"], axis=1)))
                 ev = dict(accepted)
                 feasible = feasible or gap_new <= opt.gap_tol or alpha == 1.0
                 step = alpha
                 if alpha == 1.0:
-                    reg = max(opt.reg_min, reg / 10.0)
-                elif alpha < 0.1:
+                    reg = max(opt.reg_min, reg * opt.reg_down)
+                elif alpha < opt.reg_up_below:
                     reg = min(opt.reg_max, reg * 10.0)
             gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1))) if not feasible else 0.0
             viol = _max(_rows(ev))
             entry = dict(iteration=it, outer=outer, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol,
-                         gap=gap, reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0)
+                         gap=gap, reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0,
+                         direction=kind if accepted is not None else None)
             history.append(entry)
             if feasible and (best is None or _better(entry, best[0], opt)):
                 best = (entry, X, U)
             if opt.verbose:
+                w = _worst_row(ev) if viol > opt.constraint_tol else None
+                where = "" if w is None else (row_label(*w[:3]) if row_label else f"{w[0]} node {w[1]} row {w[2]}")
+                mark = "*" if entry["direction"] == "end" else " "
                 log(f"{it:5d} {entry['cost']:13.6e} {entry['merit']:13.6e} {viol:9.2e} {gap:9.2e} {reg:8.1e} "
-                    f"{step:8.2e} {stat:9.2e} {entry['time']:7.2f}")
+                    f"{step:8.2e}{mark}{stat:9.2e} {entry['time']:7.2f}  {where}")
             if callback is not None:
                 callback(entry)
     except KeyboardInterrupt:
@@ -539,7 +651,23 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
                      status=status, iterations=it, history=history, lam_eq=np.asarray(al["lam_eq"]),
-                     lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]))
+                     lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]),
+                     multipliers={k: np.asarray(v) for k, v in al.items()})
+
+
+def _shift_end_multipliers(al, nu, n_eq):
+    """``al`` with the final node's multipliers moved by the LQ multipliers ``nu``
+    (`_Compiled._project`; the equality rows' ``lambda + nu``, the inequality rows'
+    ``max(0, lambda - nu)``: PHR's ``lambda`` multiplies ``-c_in``)."""
+    out = dict(al)
+    out["lam_eq"] = al["lam_eq"].at[-1].add(nu[:n_eq])
+    out["lam_in"] = al["lam_in"].at[-1].set(jnp.maximum(0.0, al["lam_in"][-1] - nu[n_eq:]))
+    return out
+
+
+def _end_viol(ev):
+    """The final node's total constraint violation (the l1 norm of its rows')."""
+    return float(np.sum(np.asarray(ev["ve"][-1])) + np.sum(np.asarray(ev["vi"][-1])))
 
 
 def _better(a, b, opt):

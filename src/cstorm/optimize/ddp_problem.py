@@ -118,7 +118,7 @@ def _dynamics(problem, layout_all, iva):
     model0 = problem.model
     nv = model0.nv
     all_passive = (False,) * nv
-    cfn = problem._contact_fn
+    cfn = problem.contact_fn
     autodiff = problem.derivatives == "autodiff"
 
     def dyn(q, v, u, data):
@@ -365,7 +365,12 @@ class _ActiveBoundary:
     """The active joints' boundary conditions, which the spline transcription imposes by
     construction, as DDP equality rows: at the end, ``q_a = q_final_active``, ``v_a =
     v_final_active`` (or 0 with ``rest_end``) and ``a_a = 0`` (``rest_end``); at the start
-    ``a_a = 0`` (``rest_start``). rad, rad/s, rad/s^2 (m for prismatic joints)."""
+    ``a_a = 0`` (``rest_start``). rad and rad/s (m, m/s for prismatic joints); the
+    accelerations enter as the velocity change over one step, ``dt a_a`` (rad/s), so that
+    they share the velocity rows' units and tolerance: resting on a compliant contact,
+    the final accelerations change by ~1e5 rad/s^2 per rad of the final state (and the
+    friction law is strongly curved at zero slip), so a tolerance of 1e-6 rad/s^2 would
+    ask the end state for a precision no linearization of the trajectory resolves."""
 
     kind = "eq"
 
@@ -385,14 +390,14 @@ class _ActiveBoundary:
         return m
 
     def point_values(self, ctx, point):  # rest_start
-        return point["a"][self.iva]
+        return self.p.dt * point["a"][self.iva]
 
     def values(self, ctx, end, samples):
         p, out = self.p, []
         if p.qa_final is not None:
             out.append(end["q"][self.ia] - jnp.asarray(p.qa_final))
         if p.rest_end:
-            out += [end["v"][self.iva], end["a"][self.iva]]
+            out += [end["v"][self.iva], p.dt * end["a"][self.iva]]
         elif p.va_final is not None:
             out.append(end["v"][self.iva] - jnp.asarray(p.va_final))
         return jnp.concatenate(out)
@@ -450,7 +455,7 @@ def initial_guess(tr: Transcription, data=None):
     lay = p.layout
     ia, iva = np.array(lay.qa_idx, int), np.array(lay.va_idx, int)
     ctrl = np.asarray(p.ctrl(jnp.asarray(p.x0), full))
-    B = {k: np.asarray(v) for k, v in p._basis.items()}
+    B = {k: np.asarray(v) for k, v in p.basis.items()}
     qa, va, aa = B["B0"] @ ctrl, B["B1"] @ ctrl, B["B2"] @ ctrl
     Q = np.tile(np.asarray(p.q0), (N + 1, 1))
     V = np.zeros((N + 1, nv))
@@ -492,7 +497,7 @@ def _guess_torques(p, Q, V, AA, data):
     states ``(Q, V)`` (hybrid dynamics with the passive DoFs' own forces and contact)."""
     lay = p.layout
     iva, ivp = np.array(lay.va_idx, int), np.array(lay.vp_idx, int)
-    cfn = p._contact_fn
+    cfn = p.contact_fn
 
     def one(q, v, aa, data):
         model = data["model"]
@@ -502,9 +507,7 @@ def _guess_torques(p, Q, V, AA, data):
         return tau_a - pf[iva]
 
     key = "ddp_guess_torques"  # compiled once per problem (the guess and the hold torques share it)
-    if key not in p._compiled:
-        p._compiled[key] = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None)))
-    return p._compiled[key](Q, V, AA, data)
+    return p.cached(key, lambda: jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None))))(Q, V, AA, data)
 
 
 def _follow_guess(C, tr, lin, X, U, data, al):
@@ -543,8 +546,8 @@ def resimulate(problem, U, q0, v0, factor=4, integrator=None):
     tr, _ = compiled_transcription(problem)
     integ = integrator or problem.integrator
     key = ("ddp_resim", int(factor), integ)
-    cache = problem._compiled
-    if key not in cache:
+
+    def build():
         layout_all = RolloutLayout.make(problem.model, ())
         sub = _SubProblem(problem, factor, integ)
         step, _ = _stepper(sub, tr.dyn, layout_all, lambda q, v, a, tau, cd: jnp.zeros(0))
@@ -559,9 +562,10 @@ def resimulate(problem, U, q0, v0, factor=4, integrator=None):
             _, xs = jax.lax.scan(one, x0, U[:-1])
             return jnp.concatenate([x0[None], xs])
 
-        cache[key] = jax.jit(run)
+        return jax.jit(run)
+
     x0 = jnp.concatenate([jnp.asarray(q0, jnp.float64), jnp.asarray(v0, jnp.float64)])
-    X = np.asarray(cache[key](x0, jnp.asarray(U, jnp.float64), tr.data))
+    X = np.asarray(problem.cached(key, build)(x0, jnp.asarray(U, jnp.float64), tr.data))
     nq = problem.model.nq
     if not np.all(np.isfinite(X)) or np.any(np.abs(X[:, :nq]) > problem.q_bound) or \
             np.any(np.abs(X[:, nq:]) > problem.v_bound):
@@ -591,11 +595,11 @@ def compiled_transcription(problem):
     (``problem.compiled`` caches them under ``"ddp"``)."""
     from .ddp import compile_ocp
 
-    cache = problem._compiled
-    if "ddp" not in cache:
+    def build():
         tr = transcribe(problem)
-        cache["ddp"] = (tr, compile_ocp(tr.ocp))
-    return cache["ddp"]
+        return tr, compile_ocp(tr.ocp)
+
+    return problem.cached("ddp", build)
 
 
 def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, constraint_tol=1e-6,
@@ -610,7 +614,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
 
     import jax.numpy as jnp
 
-    from .. import __version__ as _ver
+    from ..version import __version__ as _ver
     from .ddp import DDPOptions, initial_multipliers, solve_ocp
     from .solution import Solution, Status
 
@@ -644,12 +648,13 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
         r0 = _follow_guess(C, tr, lin, Xj, Uj, data, al)
         if r0 is not None:
             X0, U0 = r0
-    res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log)
+    res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log,
+                    row_label=tr.row_label)
     traj = tr.trajectory(res.Y)
     traj["u"] = np.asarray(res.U)
     if traj.get("contact") is not None:
-        from .solve import _contact_dict
-        traj["contact"] = _contact_dict(traj["contact"])
+        from .solution import contact_dict
+        traj["contact"] = contact_dict(traj["contact"])
     success = res.converged and res.violation <= constraint_tol
     message = {"converged": "converged", "max_iter": f"iteration limit ({max_iter}) reached",
                "line_search": "no step decreased the merit at the largest regularization",
@@ -692,4 +697,4 @@ def spline_guess(problem, solution):
                            f"{problem.n_steps + 1}")
     model = problem.model
     guess = {n: (t, q[:, model.joint_q(n).start]) for n in problem.active}
-    return problem._initial_guess(guess)
+    return problem.initial_x(guess)

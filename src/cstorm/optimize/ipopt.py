@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bounds import clip_into, variable_bounds
+
 __all__ = ["run_ipopt"]
 
 
@@ -130,9 +132,8 @@ def run_ipopt(ca, ev, x0, tracker, stage, params, max_iter, tol, options):
     solver = ca.nlpsol("cstorm_ipopt", "ipopt", nlp, opts)
     lbg = np.concatenate([np.zeros(ne), np.zeros(ni)])
     ubg = np.concatenate([np.zeros(ne), np.full(ni, np.inf)])
-    from .solve import variable_bounds, _clip_into
     lbx, ubx = getattr(ev, "bounds", None) or variable_bounds(ev.p)
-    args = dict(x0=_clip_into(x0, lbx, ubx), lbx=lbx, ubx=ubx)
+    args = dict(x0=clip_into(x0, lbx, ubx), lbx=lbx, ubx=ubx)
     if m:
         args.update(lbg=lbg, ubg=ubg)
     res = solver(**args)

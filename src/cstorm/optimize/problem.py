@@ -59,6 +59,8 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
+from ..contact import contact_forces
+from ..dynamics.configuration import difference, integrate
 from ..errors import ProblemError
 from ..simulate import RolloutLayout, active_paths, rollout, time_grid, DERIVATIVES, INTEGRATORS
 from ..simulate.steps import n_steps
@@ -344,7 +346,7 @@ class MotionProblem:
         self._term_slices = self._slices()
         self.n_eq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "eq")
         self.n_ineq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "ineq")
-        self.x0 = self._initial_guess(initial_guess)
+        self.x0 = self.initial_x(initial_guess)
 
     # ------------------------------------------------------------------ free initial state
     def _parse_free_initial(self, spec):
@@ -414,8 +416,6 @@ class MotionProblem:
             return None
         if contact is None:
             raise ProblemError("MotionProblem: env given without contact parameters (contact=cs.ContactParams(...))")
-        from ..contact import contact_forces
-
         def fn(model, env_, params_, q, v):
             out = contact_forces(model, env_, params_, q, v, jacobians=self.contact_jacobians)
             return out.f_ext, out
@@ -493,7 +493,6 @@ class MotionProblem:
     def _node_states(self, x, data):
         """Node configurations ``(K-1, nq)`` and velocities ``(K-1, nv)`` at ``x`` (the
         active entries are placeholders: the rollout takes them from the paths)."""
-        from ..dynamics.configuration import integrate
         model, vp = data["model"], np.array(self.layout.vp_idx, int)
         z = jnp.reshape(x[self.n_vars - self.n_node_vars:], (self.shooting - 1, 2, self.n_vp))
         dq = jnp.zeros((self.shooting - 1, model.nv), x.dtype).at[:, vp].set(z[:, 0])
@@ -504,7 +503,6 @@ class MotionProblem:
     def _multiple_shooting(self, x, data, q0, v0, paths, kw):
         """The ``K`` intervals as one vmapped rollout, stitched (see the module docstring);
         adds ``defects`` (2 n_vp (K-1),) to the result."""
-        from ..dynamics.configuration import difference
         model, K = data["model"], self.shooting
         n = self.n_steps // K
         qs, vs = self._node_states(x, data)
@@ -551,7 +549,6 @@ class MotionProblem:
         x = np.array(x, dtype=float).reshape(-1)
         if self.shooting == 1:
             return x
-        from ..dynamics.configuration import difference
         data = self.data() if data is None else data
         traj, n = self.compiled("trajectory"), self.n_steps // self.shooting
         vp = np.array(self.layout.vp_idx, int)
@@ -686,6 +683,32 @@ class MotionProblem:
                 raise ValueError(which)
         return self._compiled[which]
 
+    def cached(self, key, build):
+        """The object this problem caches under ``key`` (any hashable), made by ``build()``
+        on first use: compiled functions that belong to one problem (a solver's
+        transcription, its helpers). `compiled` keeps its functions in the same cache;
+        copies of a problem (``copy.copy``) share it."""
+        if key not in self._compiled:
+            self._compiled[key] = build()
+        return self._compiled[key]
+
+    @property
+    def contact_fn(self):
+        """The contact model as a pure function ``(model, env, contact_params, q, v) ->
+        (f_ext, contact data)`` (``f_ext`` (n_bodies, 6), `cstorm.contact_forces`'
+        convention), ``env`` and ``contact_params`` taken from `data`; None for a problem
+        without contact."""
+        return self._contact_fn
+
+    @property
+    def basis(self) -> dict:
+        """The active paths' spline basis on the integration grid
+        (`cstorm.simulate.active_paths`), JAX arrays: ``B0, B1, B2`` ((N+1, n_ctrl):
+        position, velocity, acceleration at the grid points) and, for RK4, ``M0, M1, M2``
+        ((N, n_ctrl) at the half steps); ``q_a = B0 @ ctrl`` with ``ctrl`` (n_ctrl,
+        n_active) from `ctrl`."""
+        return self._basis
+
     def _fun_jac(self, x, data):
         def y(xx):
             r = self.evaluate(xx, data)
@@ -726,7 +749,13 @@ class MotionProblem:
         return (val[0], val[1:1 + ne], val[1 + ne:], div, J[0], J[1:1 + ne], J[1 + ne:])
 
     # ------------------------------------------------------------------ initial guess
-    def _initial_guess(self, guess):
+    def initial_x(self, guess):
+        """The decision vector (n_vars,) of an initial guess given as ``MotionProblem``'s
+        ``initial_guess`` takes it: None (each active joint linear from its start to its
+        end value), ``{joint: (t, values)}`` samples (s; rad or m) that each active
+        joint's spline is fitted to under the problem's boundary conditions, or a vector
+        (n_vars,) returned as it is. Offsets of free initial states and shooting nodes are
+        0. Raises `ProblemError` for a wrong shape or a non-active joint."""
         na, nf = self.layout.n_active, self.n_free
         if guess is not None and not isinstance(guess, dict):
             x = np.asarray(guess, dtype=float).reshape(-1)

@@ -13,6 +13,8 @@ import os
 import threading
 
 import numpy as np
+import jax
+import jax.numpy as jnp
 
 from ..errors import ProblemError
 from .problem import MotionProblem
@@ -54,17 +56,20 @@ class MotionSequence:
     def __repr__(self):
         return f"MotionSequence({self.name!r}, {len(self.segments)} segments)"
 
-    def _solve(self, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose, callback,
-               checkpoint, options, out, objective_scale="auto", resume=None):
-        """Solve the segments in order (see `cstorm.solve`). With ``checkpoint=path``
-        segment ``k`` writes its iterates to ``path.seg<k>.npz`` and, once solved (not
-        interrupted), its solution to ``path.seg<k>.done.npz``; ``resume=path`` takes
-        every segment whose ``.done.npz`` belongs to it (same problem hash) as solved
-        and continues the first other one from its ``.seg<k>.npz`` when there is one.
-        A KeyboardInterrupt stops the sequence and returns the segments solved so far
-        (one raised before the first segment has an iterate propagates)."""
+    def solve_segments(self, solve_one, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose,
+                       callback, checkpoint, options, out, objective_scale="auto", resume=None):
+        """Solve the segments in order with ``solve_one(segment, q0=..., v0=..., **options)``
+        (`cstorm.solve`'s single-problem solver), each from the previous one's final
+        state, and return the sequence's `Solution` (its ``segments`` hold the segments'
+        solutions, its trajectory their concatenation). Stops after an interrupted
+        segment. With ``checkpoint=path`` segment ``k`` writes its iterates to
+        ``path.seg<k>.npz`` and, once solved (not interrupted), its solution to
+        ``path.seg<k>.done.npz``; ``resume=path`` takes every segment whose
+        ``.done.npz`` belongs to it (same problem hash) as solved and continues the
+        first other one from its ``.seg<k>.npz`` when there is one. A KeyboardInterrupt
+        stops the sequence and returns the segments solved so far (one raised before the
+        first segment has an iterate propagates)."""
         from .solution import load_solution
-        from .solve import _solve_problem
         sols = []
         q0 = v0 = None
         stopped_between = False
@@ -90,10 +95,10 @@ class MotionSequence:
             try:
                 if warm is not None and k > warm[0]:
                     warm[1].wait(k - warm[0] - 1)  # its compile, started in the background, is done (or failed)
-                s = _solve_problem(seg, method=method, continuation=continuation, schedule=schedule,
-                                   max_iter=max_iter, tol=tol, constraint_tol=constraint_tol, verbose=verbose,
-                                   callback=callback, checkpoint=ck, options=options, out=out, q0=q0, v0=v0,
-                                   objective_scale=objective_scale, resume=rk)
+                s = solve_one(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+                              tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
+                              checkpoint=ck, options=options, out=out, q0=q0, v0=v0,
+                              objective_scale=objective_scale, resume=rk)
             except KeyboardInterrupt:
                 if not sols:
                     raise
@@ -165,13 +170,9 @@ class _Precompiler:
     = False`` turns this off."""
 
     def __init__(self, segments, first=None):
-        import jax
-
         self._done = [threading.Event() for _ in segments]
 
         def run():
-            import jax.numpy as jnp
-
             seen = [first]
             for seg, ev in zip(segments, self._done):
                 if any(seg is s for s in seen):  # the same problem again: compiled once

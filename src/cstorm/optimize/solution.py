@@ -11,11 +11,12 @@ import os
 from typing import Any
 
 import numpy as np
+import jax
 
 from ..errors import InputError
 from ..io.files import atomic_savez
 
-__all__ = ["Solution", "Status", "load_solution", "atomic_savez"]
+__all__ = ["Solution", "Status", "load_solution", "atomic_savez", "contact_dict"]
 
 _TRAJ_KEYS = ("t", "q", "v", "a", "tau")
 _SCALARS = ("problem", "success", "status", "message", "cost", "constraint_violation", "iterations", "wall_time_s",
@@ -124,6 +125,15 @@ class Solution:
         arrays["meta_json"] = np.array(json.dumps(meta))
         atomic_savez(path, arrays)
         return path
+
+
+def contact_dict(c):
+    """A pytree of contact data (e.g. `cstorm.ContactData` over a trajectory) as a flat
+    dict of numpy arrays keyed by the leaves' paths (``"d"``, ``"f_ext"``, nested fields
+    joined by ``/``), as `Solution` trajectories store and save it."""
+    leaves = jax.tree_util.tree_flatten_with_path(c)[0]
+    return {jax.tree_util.keystr(p).strip(".[]'\"").replace("'", "").replace("][", "/") or str(i): np.asarray(v)
+            for i, (p, v) in enumerate(leaves)}
 
 
 def _flat_dict(d, prefix=""):

@@ -35,10 +35,16 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
+from ..version import __version__
 from ..errors import DivergenceError, InputError, ProblemError
+from ..mapguard import relieve_map_pressure
 from ..simulate import check_divergence
+from .ddp_problem import solve_ddp
+from .ipopt import run_ipopt
 from .problem import MotionProblem, require_x64
-from .solution import Solution, Status, atomic_savez
+from .bounds import clip_into, stage_bounds, variable_bounds
+from .sequence import MotionSequence
+from .solution import Solution, Status, atomic_savez, contact_dict
 
 __all__ = ["solve", "check_solve_arguments"]
 
@@ -293,9 +299,8 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
     """
     require_x64("solve")
     check_solve_arguments(method, max_iter, tol, constraint_tol, options)
-    from .sequence import MotionSequence
     if isinstance(problem, MotionSequence):
-        return problem._solve(method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+        return problem.solve_segments(_solve_problem, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
                               tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
                               checkpoint=checkpoint, options=options, out=out, objective_scale=objective_scale,
                               resume=resume)
@@ -310,15 +315,11 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
 def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, schedule=None, max_iter=500, tol=1e-8,
                    constraint_tol=1e-6, verbose=False, callback=None, checkpoint=None, resume=None, options=None,
                    out=None, q0=None, v0=None, objective_scale="auto"):
-    from ..mapguard import relieve_map_pressure
-
     relieve_map_pressure(where="solve")
     method = method.lower()
     if method not in METHODS:
         raise InputError(f"solve: method must be one of {list(METHODS)}, got {method!r}")
     if method == "ddp":
-        from .ddp_problem import solve_ddp
-
         return solve_ddp(problem, q0=q0, v0=v0, max_iter=max_iter, tol=tol,
                          constraint_tol=constraint_tol, verbose=verbose, callback=callback, out=out,
                          options=options)
@@ -387,8 +388,8 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
         if _rest[2] and k == 0:  # initial guess diverges
             traj = problem.compiled("trajectory")(jnp.asarray(x), data)
             check_divergence(problem.model, traj, problem.dt, f"{problem.name}: the initial guess's rollout")
-        ev.fscale = _objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
-        ev.bounds = _stage_bounds(problem, x, st["extra"].get("trust_region"))
+        ev.fscale = resolve_objective_scale(objective_scale, ev, x, problem.solve_options.get("first_step", 1.0))
+        ev.bounds = stage_bounds(problem, x, st["extra"].get("trust_region"))
         tracker.best = None  # best iterate of the current stage (earlier stages solve other problems)
         try:
             # intermediate stages only warm-start the next one: the problem may loosen them
@@ -488,10 +489,9 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
                       ctrl=traj["ctrl"])
     if traj.get("contact") is not None:
         c = traj["contact"]
-        trajectory["contact"] = c if isinstance(c, dict) else _contact_dict(c)
-    from .. import __version__ as _ver
+        trajectory["contact"] = c if isinstance(c, dict) else contact_dict(c)
     info = dict(method=method, max_iter=max_iter, tol=tol, constraint_tol=constraint_tol, stages=stages_info,
-                problem_hash=problem.hash(), problem_description=problem.describe(), cstorm_version=_ver,
+                problem_hash=problem.hash(), problem_description=problem.describe(), cstorm_version=__version__,
                 options=_jsonable(options or {}))
     sol = Solution(success=bool(success), status=status, message=message, cost=float(f), constraint_violation=float(viol),
                    iterations=tracker.iteration, x=np.asarray(x), trajectory=trajectory, history=tracker.history,
@@ -528,8 +528,10 @@ def _midpoint(a, b):
     return {key: (float(v) if v.ndim == 0 else v.tolist()) for key, v in mid.items()} if moved else None
 
 
-def _objective_scale(spec, ev, x, first_step=1.0):
-    """The factor applied to the objective seen by the solver. ``"auto"``: ``first_step /
+def resolve_objective_scale(spec, ev, x, first_step=1.0):
+    """The factor applied to the objective seen by the solver, from `solve`'s
+    ``objective_scale`` ``spec`` and the stage's evaluator ``ev`` at its start ``x``
+    (n_vars,). ``"auto"``: ``first_step /
     |grad f(x_start)|_inf`` (so the first quasi-Newton step, taken with an identity
     Hessian, moves no control point by more than about ``first_step`` rad or m because of
     the cost; a problem sets ``solve_options["first_step"]``, default 1, where a radian
@@ -546,12 +548,6 @@ def _objective_scale(spec, ev, x, first_step=1.0):
     return val
 
 
-def _contact_dict(c):
-    leaves = jax.tree_util.tree_flatten_with_path(c)[0]
-    return {jax.tree_util.keystr(p).strip(".[]'\"").replace("'", "").replace("][", "/") or str(i): np.asarray(v)
-            for i, (p, v) in enumerate(leaves)}
-
-
 def _jsonable(d):
     if isinstance(d, dict):
         return {str(k): _jsonable(v) for k, v in d.items()}
@@ -565,56 +561,6 @@ def _jsonable(d):
 # ---------------------------------------------------------------------------------------
 # SLSQP
 # ---------------------------------------------------------------------------------------
-def variable_bounds(problem):
-    """Box bounds ``(lb, ub)`` (each (n_vars,)) on the decision vector given to the solver.
-
-    The free control points of an active joint's spline lie within the joint's position
-    limits (``model.q_lower``/``q_upper``; +-inf where unlimited). A clamped B-spline lies
-    in the convex hull of its control points, so these bounds keep the whole path within
-    the limits, and they stop a quasi-Newton step from throwing the controls to absurd
-    values (SLSQP otherwise may, far from the solution). A problem may override them with
-    an attribute ``x_bounds = (lb, ub)``; variables past the spline's (e.g. free initial
-    states) are unbounded unless the problem says otherwise.
-    """
-    custom = getattr(problem, "x_bounds", None)
-    if custom is not None:
-        lb, ub = (np.broadcast_to(np.asarray(b, float), (problem.n_vars,)).copy() for b in custom)
-        return lb, ub
-    lb, ub = np.full(problem.n_vars, -np.inf), np.full(problem.n_vars, np.inf)
-    m, lay = problem.model, problem.layout
-    nf = problem.n_free
-    lo, hi = np.asarray(m.q_lower, float), np.asarray(m.q_upper, float)
-    for j, qi in enumerate(lay.qa_idx):
-        lb[j * nf:(j + 1) * nf], ub[j * nf:(j + 1) * nf] = lo[qi], hi[qi]
-    return lb, ub
-
-
-def _stage_bounds(problem, x, r=None):
-    """The variable bounds of one stage that starts at ``x``: `variable_bounds`, and with
-    a trust radius ``r`` (``problem.solve_options["trust_region"]`` unless given, e.g. by
-    a schedule stage's ``"trust_region"``; same units as ``x``; a number or one radius
-    per variable, e.g. smaller for multiple-shooting nodes of a body resting on a stiff
-    contact) also within ``r`` of ``x`` (a box trust region per stage that moves with the
-    solve: SLSQP's linearized constraints otherwise throw a warm start radians away; a
-    continuation plan can still travel far, ``r`` per stage). ``x`` is first moved into
-    the bounds."""
-    lb, ub = variable_bounds(problem)
-    r = problem.solve_options.get("trust_region") if r is None else r
-    if r is None:
-        return lb, ub
-    xc = _clip_into(np.asarray(x, float), lb, ub)
-    r = np.asarray(r, float)
-    if r.shape not in ((), xc.shape):
-        raise InputError(f"solve: solve_options['trust_region'] must be a number or have shape {xc.shape} (one "
-                         f"radius per variable), got shape {r.shape}")
-    return np.maximum(lb, xc - r), np.minimum(ub, xc + r)
-
-
-def _clip_into(x, lb, ub):
-    """x moved into the box (an initial guess outside it would be rejected by SLSQP)."""
-    return np.minimum(np.maximum(x, lb), ub)
-
-
 def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
     from scipy.optimize import Bounds, minimize
 
@@ -635,7 +581,7 @@ def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
     opts.update(options or {})
     lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     bounds = Bounds(lb, ub) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
-    res = minimize(fun, _clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
+    res = minimize(fun, clip_into(x, lb, ub), jac=True, method="SLSQP", constraints=cons, options=opts,
                    callback=cb, bounds=bounds)
     return np.asarray(res.x), bool(res.success), f"SLSQP: {res.message}", int(res.nit)
 
@@ -669,7 +615,7 @@ def _run_trust_constr(ev, x, tracker, stage, params, max_iter, tol, options):
     opts.update(options or {})
     lb, ub = getattr(ev, "bounds", None) or variable_bounds(ev.p)
     bounds = Bounds(lb, ub, keep_feasible=True) if (np.isfinite(lb).any() or np.isfinite(ub).any()) else None
-    x_in = _clip_into(x, lb, ub)
+    x_in = clip_into(x, lb, ub)
     if bounds is not None:  # keep_feasible needs a strictly interior start (where both bounds are finite)
         fin = np.isfinite(lb) & np.isfinite(ub)
         w = np.where(fin, ub - lb, 0.0) * 1e-9
@@ -689,5 +635,4 @@ def _run_ipopt(ev, x, tracker, stage, params, max_iter, tol, options):
     except ImportError:
         raise ProblemError("solve(method='ipopt') needs casadi: pip install 'cstorm[ipopt]' (or pip install casadi)") \
             from None
-    from .ipopt import run_ipopt
     return run_ipopt(ca, ev, x, tracker, stage, params, max_iter, tol, options)

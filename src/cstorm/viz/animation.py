@@ -24,6 +24,7 @@ import subprocess
 import numpy as np
 
 from ..io.files import atomic_write
+from .planar import draw_obstacles, robot_extent, robot_outlines, skeleton
 from ..progress import bar as progress_bar
 
 
@@ -48,8 +49,6 @@ def render_frames(motion, *, fps=25.0, size=(6.4, 4.0), dpi=100, max_frames=2000
     from matplotlib.patches import Polygon
 
     from matplotlib.collections import LineCollection
-
-    from .planar import draw_obstacles, robot_extent, robot_outlines, skeleton
 
     poses, com = motion.kinematics()
     idx = frame_indices(motion.t, fps, max_frames)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dynamics.kinematics import forward_kinematics
 from ..geometry.shapes import Box, Capsule, ConvexMesh, Cylinder, Plane, Sphere
 
 
@@ -57,7 +58,6 @@ def shape_outline(shape, T, n=24):
 def draw_model(ax, model, q, *, color="C0", alpha=1.0, lw=1.0):
     """Draw the model's collision shapes at configuration q on a matplotlib axis."""
     from matplotlib.patches import Polygon
-    from ..dynamics.kinematics import forward_kinematics
 
     Tb = np.asarray(forward_kinematics(model, q))
     artists = []

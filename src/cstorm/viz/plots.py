@@ -14,6 +14,7 @@ import os
 import numpy as np
 
 from ..io.files import atomic_write
+from .planar import draw_obstacles, robot_outlines, skeleton
 
 _DPI = 110
 
@@ -147,7 +148,6 @@ def plot_paths(motion, path, n_strobe=6):
     body's origin, with the obstacles and a strobe of the robot (viridis colours:
     purple = start, yellow = end), equal aspect."""
     plt = _mpl()
-    from .planar import draw_obstacles, robot_outlines, skeleton
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Polygon
 

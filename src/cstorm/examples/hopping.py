@@ -1,8 +1,8 @@
-"""Building blocks shared by the hopping examples (`hopper`, `luxo`): a schedule-free
-flight constraint, an at-rest terminal constraint, the standing equilibrium, and success
-criteria computed from a `Solution`.
+"""Building blocks shared by the hopping examples (`hopper`, `luxo`): the standing
+equilibrium, the hop-forward-and-land problem and its success criteria computed from a
+`Solution`. Its terms (`FlightClearance`, `AtRest`, ...) are `cstorm.optimize`'s.
 
-Not an example itself (the leading underscore keeps it out of the registry).
+Not an example itself: it registers no problem (no ``EXAMPLES``).
 """
 
 from __future__ import annotations
@@ -10,219 +10,21 @@ from __future__ import annotations
 import numpy as np
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import logsumexp
 
-from ..errors import ProblemError
-from ..optimize.constraints import Constraint, TorqueLimits
-from ..optimize.costs import Cost, resolve
 from ..analysis.torque import torque_check
-from ._planar import criterion, longest_run, trajectory_contact_d
+from ..contact import Environment, contact_forces, ground
+from ..dynamics.hybrid import hybrid_unchecked
+from ..dynamics.passive import passive_forces
+from ..optimize import constraints, costs
+from ..optimize.constraints import AtRest, FlightClearance, ForwardDistance, PitchBound, ScaledTorqueLimits
+from ..optimize.costs import LandingPenalty
+from ..optimize.guesses import keyframe_guess
+from ..optimize.problem import MotionProblem
+from ..optimize.bounds import variable_bounds
+from ..simulate import RolloutLayout
+from .planar import criterion, hold_test, longest_run, trajectory_contact_d
 
-__all__ = ["FlightClearance", "AtRest", "ForwardDistance", "PitchBound", "LandingPenalty", "ScaledTorqueLimits", "soft_clearance",
-           "standing_equilibrium", "hop_criteria", "flight_time", "keyframe_guess", "hop_problem"]
-
-
-def soft_clearance(d, tau_points, tau_time):
-    """Smooth "highest clearance reached": ``tau_time logsumexp_s(c_s / tau_time)`` with
-    ``c_s = -tau_points logsumexp_k(-d_sk / tau_points)`` (a smooth min over the contact
-    points at sample ``s``). ``d``: (S, k) signed distances, m. The smooth min is at most
-    ``tau_points ln k`` below the true min; the smooth max at most ``tau_time ln S`` above
-    the true max (about ``tau_time ln n`` when ``n`` samples are near the top)."""
-    c = -tau_points * logsumexp(-d / tau_points, axis=1)
-    return tau_time * logsumexp(c / tau_time)
-
-
-class FlightClearance(Constraint):
-    """A flight phase, without saying when: at some sample of the constraint grid every
-    contact point is at least ``clearance`` (m, or a problem-parameter name) above the
-    obstacles, through the smooth max-over-time of the smooth min-over-points of the
-    contact distances (`soft_clearance`). One inequality ``scale (soft_clearance -
-    clearance) >= 0`` (``scale`` 1/m, default 100: the value in cm, so that its
-    sensitivities are of the order of the other constraints'). Needs a problem with contact (``env``/``contact``); the distances are the
-    rollout's contact data at the samples (recomputed from the sampled states by
-    `cstorm.contact_forces` if the samples carry none)."""
-
-    kind = "ineq"
-
-    def __init__(self, clearance, tau_points=1e-3, tau_time=2e-3, scale=100.0, stage=0, name="flight"):
-        self.clearance, self.tau_points, self.tau_time = clearance, float(tau_points), float(tau_time)
-        self.scale = float(scale)
-        self.stage, self.name = int(stage), name
-
-    def values(self, ctx, end, samples):
-        from ..contact import contact_forces
-
-        p = ctx.problem
-        if p.env is None:  # (MotionProblem runs check() before it stores env)
-            raise ProblemError("FlightClearance: the problem has no environment/contact model")
-        c = samples.get("contact")
-        if c is not None and hasattr(c, "d"):  # the rollout's own contact data at the samples
-            d = c.d
-        else:
-            d = jax.vmap(lambda q, v: contact_forces(ctx.model, p.env, p.contact, q, v).d)(samples["q"], samples["v"])
-        peak = soft_clearance(d, self.tau_points, self.tau_time)
-        return jnp.atleast_1d(self.scale * (peak - resolve(self.clearance, ctx.params)))
-
-    def describe(self):
-        return {"type": "FlightClearance", "clearance": self.clearance, "tau_points": self.tau_points,
-                "tau_time": self.tau_time, "scale": self.scale, "stage": self.stage}
-
-
-class AtRest(Constraint):
-    ddp = "end"
-    """The passive DoFs (the floating base) end at rest: ``v_p(T) = 0`` and, with
-    ``acceleration=True``, ``a_p(T) = 0`` (so the final state is a static equilibrium, not
-    the turning point of a bounce); ``2 n_passive`` equalities (m/s, rad/s, m/s^2, rad/s^2;
-    accelerations multiplied by ``accel_scale`` s). With ``tol`` (a number or a problem
-    parameter's name) they become the inequalities ``|value| <= tol`` instead (a landing
-    tolerance that a solve plan can tighten: switching on equalities that are far from
-    satisfied makes SLSQP take radian-sized steps); ``accel_tol`` (likewise) gives the
-    accelerations their own tolerance, ``|a_p| <= accel_tol`` (m/s^2, rad/s^2; the values
-    still multiplied by ``accel_scale``)."""
-
-    kind = "eq"
-
-    def __init__(self, acceleration=True, accel_scale=0.1, tol=None, stage=0, name="at_rest", accel_tol=None):
-        self.acceleration, self.accel_scale, self.tol = bool(acceleration), float(accel_scale), tol
-        self.accel_tol = accel_tol
-        if accel_tol is not None and (tol is None or not self.acceleration):
-            raise ProblemError("AtRest: accel_tol needs acceleration=True and a velocity tol")
-        self.kind = "eq" if tol is None else "ineq"
-        self.stage, self.name = int(stage), name
-
-    def check(self, problem):
-        self._vp = np.array(problem.layout.vp_idx, int)
-        if not len(self._vp):
-            raise ProblemError("AtRest: the problem has no passive DoFs")
-
-    def values(self, ctx, end, samples):
-        v = end["v"][self._vp]
-        if self.accel_tol is not None:
-            tv, ta = resolve(self.tol, ctx.params), resolve(self.accel_tol, ctx.params)
-            a = end["a"][self._vp]
-            return jnp.concatenate([tv - v, tv + v, self.accel_scale * (ta - a), self.accel_scale * (ta + a)])
-        out = [v]
-        if self.acceleration:
-            out.append(self.accel_scale * end["a"][self._vp])
-        e = jnp.concatenate(out)
-        if self.tol is None:
-            return e
-        tol = resolve(self.tol, ctx.params)
-        return jnp.concatenate([tol - e, tol + e])
-
-    def describe(self):
-        d = {"type": "AtRest", "acceleration": self.acceleration, "accel_scale": self.accel_scale,
-             "tol": self.tol, "stage": self.stage}
-        if self.accel_tol is not None:  # only when used: earlier problems' hashes stay the same
-            d["accel_tol"] = self.accel_tol
-        return d
-
-
-class ForwardDistance(Constraint):
-    ddp = "end"
-    """``scale (q_j(T) - q_j(0) - distance) >= 0`` for the prismatic base joint ``joint``
-    (``distance`` in m, a problem-parameter name allowed; ``scale`` 1/m, default 10). One
-    inequality."""
-
-    kind = "ineq"
-
-    def __init__(self, distance, joint="root_x", scale=10.0, stage=0, name="forward"):
-        self.distance, self.joint, self.scale = distance, joint, float(scale)
-        self.stage, self.name = int(stage), name
-
-    def check(self, problem):
-        if self.joint not in problem.model.joint_names:
-            raise ProblemError(f"ForwardDistance: no joint named {self.joint!r}")
-        self._i = problem.model.joint_q(self.joint).start
-
-    def values(self, ctx, end, samples):
-        return jnp.atleast_1d(self.scale * (end["q"][self._i] - samples["q"][0, self._i]
-                                            - resolve(self.distance, ctx.params)))
-
-    def describe(self):
-        return {"type": "ForwardDistance", "distance": self.distance, "joint": self.joint, "stage": self.stage}
-
-
-class PitchBound(Constraint):
-    ddp = "path"
-    """``|q_j - center| <= bound`` for the base's pitch joint ``joint`` (rad) on the
-    constraint grid: keeps the robot from tipping over during the motion (and gives the
-    optimizer a gradient against falling long before the end). ``bound`` may name a
-    problem parameter. ``2 S`` inequalities."""
-
-    kind = "ineq"
-
-    def __init__(self, bound, joint="root_pitch", center=0.0, stage=0, name="pitch_bound"):
-        self.bound, self.joint, self.center = bound, joint, float(center)
-        self.stage, self.name = int(stage), name
-
-    def check(self, problem):
-        if self.joint not in problem.model.joint_names:
-            raise ProblemError(f"PitchBound: no joint named {self.joint!r}")
-        self._i = problem.model.joint_q(self.joint).start
-
-    def values(self, ctx, end, samples):
-        e = samples["q"][:, self._i] - self.center
-        b = resolve(self.bound, ctx.params)
-        return jnp.concatenate([b - e, b + e])
-
-    def describe(self):
-        return {"type": "PitchBound", "bound": self.bound, "joint": self.joint, "center": self.center,
-                "stage": self.stage}
-
-
-class LandingPenalty(Cost):
-    """Terminal cost ``weight/2 (|q_b(T) - q_rest|^2 + |v_b(T)|^2)`` over the base DoFs
-    ``joints`` (default ``root_z, root_pitch``: m, rad; every base velocity: m/s, rad/s):
-    the landing at rest as a penalty, for the first stages of a solve, before `AtRest` and
-    the terminal base pose become constraints (SLSQP's linearized landing constraints
-    throw a robot that has not yet learnt to hop far from its guess). ``weight`` may name
-    a problem parameter (units of the cost per m^2)."""
-
-    def __init__(self, weight, q_rest, joints=("root_z", "root_pitch")):
-        self.weight, self.q_rest, self.joints = weight, {k: float(v) for k, v in q_rest.items()}, tuple(joints)
-
-    def check(self, problem):
-        m = problem.model
-        self._qi = np.array([m.joint_q(n).start for n in self.joints], int)
-        self._qr = np.array([self.q_rest[n] for n in self.joints])
-        self._vp = np.array(problem.layout.vp_idx, int)
-
-    def terminal(self, ctx, end):
-        e = end["q"][self._qi] - self._qr
-        v = end["v"][self._vp]
-        return 0.5 * resolve(self.weight, ctx.params) * (jnp.sum(e * e) + jnp.sum(v * v))
-
-    def describe(self):
-        return {"type": "LandingPenalty", "weight": self.weight, "q_rest": self.q_rest, "joints": list(self.joints)}
-
-
-class ScaledTorqueLimits(TorqueLimits):
-    """``factor - |tau_i| / limit_i >= 0`` for the active joints' motors (the model's
-    effort limits): `constraints.TorqueLimits` divided by the limits, so that its values
-    are O(1) like the other constraints' (SLSQP reports "inequality constraints
-    incompatible" with raw N m values of a 200 N m motor). ``factor`` (a number or a
-    problem parameter's name, default 1) lets a solve plan start with the limits relaxed
-    and tighten them to 1. ``dense=True``: on every integration step, through a smooth max
-    per window of the constraint grid (see `constraints.TorqueLimits`), not only on the
-    grid."""
-
-    def __init__(self, factor=1.0, stage=0, name="torque_limits", dense=False, rho=200.0):
-        super().__init__(stage=stage, name=name, normalized=True, dense=dense, rho=rho, factor=factor)
-
-    def check(self, problem):
-        lim = np.asarray(problem.model.effort_limit)[np.array(problem.layout.va_idx, int)]
-        if not np.all(np.isfinite(lim)):
-            raise ProblemError("ScaledTorqueLimits: the model's effort_limit is infinite for some active joints")
-        super().check(problem)
-
-    def describe(self):  # its own type name: the hashes of earlier problems stay the same
-        d = {"type": "ScaledTorqueLimits", "stage": self.stage}
-        if self.factor != 1.0:
-            d["factor"] = self.factor
-        if self.dense:
-            d.update(dense=True, rho=self.rho)
-        return d
+__all__ = ["standing_equilibrium", "hop_criteria", "flight_time", "hop_problem"]
 
 
 def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-12):
@@ -230,11 +32,6 @@ def standing_equilibrium(model, env, contact, q_guess, active, iters=30, tol=1e-
     ``q_guess`` values: Newton's method on ``a_p(q_p) = 0`` at ``v = 0`` (hybrid dynamics
     with contact forces, zero active accelerations). Returns ``(q, |a_p|_inf)``, q (nq,).
     Compiles a small function (a few seconds)."""
-    from ..contact import contact_forces
-    from ..dynamics.hybrid import hybrid_unchecked
-    from ..dynamics.passive import passive_forces
-    from ..simulate import RolloutLayout
-
     lay = RolloutLayout.make(model, active)
     qp_idx, vp_idx = np.array(lay.qp_idx, int), np.array(lay.vp_idx, int)
     q_guess = jnp.asarray(q_guess, jnp.float64)
@@ -288,7 +85,7 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
       integration step (not only at the constraint's samples) <= 1 (+1e-6): the motors can
       deliver the motion;
     - with ``hold`` (a dict ``duration`` s, ``pitch_tol`` rad, ``pos_tol`` m, ``v_tol``
-      m/s and rad/s): `_planar.hold_test`, the robot kept ``duration`` s more with its
+      m/s and rad/s): `planar.hold_test`, the robot kept ``duration`` s more with its
       joints locked stays put: ``holds_still_pitch``, ``holds_still_position`` (the
       largest deviations from the final pose) and ``still_after_hold`` (the base speed at
       the end of the hold).
@@ -317,27 +114,11 @@ def hop_criteria(problem, solution, *, distance, min_flight, z_rest, pitch_rest,
         torque_limits=criterion(tq["worst_ratio"], 1.0, tq["ok"]),
     )
     if hold is not None:
-        from ._planar import hold_test
-
         dev, pos, vend = hold_test(problem, solution, hold["duration"])
         out.update(holds_still_pitch=criterion(dev, hold["pitch_tol"], dev <= hold["pitch_tol"]),
                    holds_still_position=criterion(pos, hold["pos_tol"], pos <= hold["pos_tol"]),
                    still_after_hold=criterion(vend, hold["v_tol"], vend <= hold["v_tol"]))
     return out
-
-
-def keyframe_guess(keyframes, t_final, names):
-    """``{joint: (t, values)}`` samples for `MotionProblem`'s ``initial_guess``: the
-    keyframe postures ``(fraction of t_final, (angle per joint))`` joined by smoothstep
-    ramps (``3 s^2 - 2 s^3``: at rest at every keyframe) on 400 points."""
-    ts = np.array([k[0] for k in keyframes], float) * float(t_final)
-    P = np.array([k[1] for k in keyframes], dtype=float)
-    tt = np.linspace(0.0, float(t_final), 400)
-    k = np.clip(np.searchsorted(ts, tt, side="right") - 1, 0, len(ts) - 2)
-    s = np.clip((tt - ts[k]) / (ts[k + 1] - ts[k]), 0.0, 1.0)
-    w = (s * s * (3.0 - 2.0 * s))[:, None]
-    vals = P[k] + (P[k + 1] - P[k]) * w
-    return {n: (tt, vals[:, j]) for j, n in enumerate(names)}
 
 
 #: the default landing ramp of `hop_problem`: (fraction of the distance, landing tolerance)
@@ -364,8 +145,10 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
     - active joints ``active``: quintic B-splines (``n_ctrl`` control points), start and
       end at their ``q_rest`` values at rest (by construction);
-    - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight ``w_land``, a
-      problem parameter; at the solution, where the landing constraints hold, it is 0);
+    - cost: ``integral 1/2 |tau|^2 dt`` plus `LandingPenalty` (weight: the problem
+      parameter ``w_land``, 0 by default, so the problem as stated is the torque cost
+      alone; the solve plan sets it to ``w_land`` in every stage: a guide for SLSQP's
+      first stages, about 0 at the solution, where the landing constraints hold);
     - constraints, stage 0: `ForwardDistance` (``distance``), joint position limits and
       `ScaledTorqueLimits` (sampled), `FlightClearance` (``clearance``: a flight phase,
       not scheduled), `PitchBound` (``|pitch - pitch_rest| <= max_pitch``);
@@ -413,14 +196,10 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
       ``(fraction, land_tol, acc_tol, pose_tol)``, the last one is the final stage (no
       separate ``land_tol`` stage; the ``land_tol`` argument is not used) and gives the
       parameters' initial values;
-    - ``extra``: more constraint terms (e.g. `_planar.SlipPower`); ``criteria_options``:
+    - ``extra``: more constraint terms (e.g. `cstorm.optimize.SlipPower`); ``criteria_options``:
       keyword arguments of `hop_criteria` (``acc_tol``, ``hold``, ...); ``final_tol``:
       the last stage's SLSQP tolerance.
     Parameters ``distance, clearance, max_pitch, w_land`` are problem parameters."""
-    from ..contact import Environment, ground
-    from ..optimize import costs, constraints
-    from ..optimize.problem import MotionProblem
-
     q_rest = np.asarray(q_rest, float)
     ia = [model.joint_q(n).start for n in active]
     ramp = RAMP if ramp is None else ramp
@@ -449,13 +228,11 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
             PitchBound("max_pitch", center=pitch_rest),
         ] + ([ScaledTorqueLimits("tau_factor", dense=True, stage=2, name="torque_limits_every_step")]
              if dense_torque else []),
-        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": w_land,
+        params={"distance": distance, "clearance": clearance, "max_pitch": max_pitch, "w_land": 0.0,
                 **rest_params, **({"tau_factor": 1.0} if dense_torque else {})},
         integrator=integrator, name=name, n_path_samples=n_path_samples,
         initial_guess=keyframe_guess(keyframes, t_final, active), shooting=shooting,
     )
-    from ..optimize.solve import variable_bounds
-
     lb, ub = variable_bounds(prob)  # the joint limits
     x0 = np.asarray(prob.x0, float)
     prob.x_bounds = (np.maximum(lb - margin, x0 - trust), np.minimum(ub + margin, x0 + trust))
@@ -475,7 +252,8 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
 
         def at(entry):  # (fraction of the distance, land_tol[, acc_tol, pose_tol])
             f, tl, *rest = entry
-            return dict(distance=distance * f, land_tol=tl, **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))
+            return dict(distance=distance * f, land_tol=tl, w_land=w_land,
+                        **(dict(acc_tol=rest[0], pose_tol=rest[1]) if rest else {}))
 
         schedule = [dict(params=dict(distance=d0, w_land=w_land * 0.01), level=0),
                     dict(params=dict(distance=d0, w_land=w_land * 0.1), level=0)] + [
@@ -483,7 +261,7 @@ def hop_problem(name, model, active, q_rest, contact, *, distance, t_final, n_ct
         if dense_torque:  # the limits on every step, tightened at the ramp's last tolerance
             schedule += [dict(params=dict(at(ramp[-1]), distance=distance, tau_factor=f), level=2) for f in dense_ramp]
         if not rest_accel:  # (with rest_accel the ramp's last stage is the final one)
-            schedule += [dict(params=dict(distance=distance, land_tol=land_tol,
+            schedule += [dict(params=dict(distance=distance, land_tol=land_tol, w_land=w_land,
                                           **({"tau_factor": 1.0} if dense_torque else {})),
                               level=2 if dense_torque else 1)]
     if schedule and final_tol is not None:

@@ -400,7 +400,7 @@ def test_demo_stopped_then_resumed(tmp_path, monkeypatch):
     p = cs.examples.get("acrobot")(t_final=1.0, n_ctrl=8, continuation=False)
     seq = cs.MotionSequence([p, p], name="standin2")
     seq.solve_options["max_iter"] = 2
-    monkeypatch.setitem(examples._registry(), "standin2", lambda: seq)
+    monkeypatch.setitem(examples.registry(), "standin2", lambda: seq)
     monkeypatch.setattr(viz_demo, "DEMO_PROBLEM", "standin2")
     monkeypatch.setattr(cli, "_PROBLEMS", {})
     monkeypatch.setenv("CSTORM_PAUSE_AT", "iterating:60")

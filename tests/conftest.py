@@ -42,7 +42,7 @@ MODULE_SECONDS = {
     "test_rollout_tangents": 159, "test_dynamics": 144, "test_walker": 136, "test_optimize": 135,
     "test_contact_jacobians": 97, "test_stepcheck": 94, "test_pinocchio": 66, "test_hopper": 55,
     "test_jumper": 52, "test_mujoco": 51, "test_docs": 49, "test_contact": 48, "test_cli": 44,
-    "test_ddp": 150,
+    "test_ddp": 150, "test_robustness": 120,
 }
 
 

@@ -146,8 +146,10 @@ def test_solve_toml_json_exit_0(solved):
 def test_summary_and_files(solved):
     rc, stdout, out = solved
     files = sorted(os.listdir(out))
-    assert files == ["animation.gif", "joints.png", "paths.png", "solution.npz", "summary.json", "torques.png",
-                     "trajectory.csv"]
+    assert files == [".cstorm-manifest.json", "animation.gif", "joints.png", "paths.png", "solution.npz",
+                     "summary.json", "torques.png", "trajectory.csv"]  # no checkpoint left after a finished run
+    assert json.loads((out / ".cstorm-manifest.json").read_text())["files"] == files[1:]
+    files = files[1:]
     for f in files:
         assert os.path.getsize(out / f) > 5000, f
     s = json.loads((out / "summary.json").read_text())

@@ -34,3 +34,9 @@ class ContactParamError(ShapeError):
 class ModelWarning(UserWarning):
     """A robot model loaded, with something implausible or ignored; the message names the
     file, body, link or element and says what it changes."""
+
+
+class TimeStepWarning(UserWarning):
+    """A fixed-step rollout's ``dt`` is past its integrator's stability limit for a mode
+    of the dynamics along the rollout (`cstorm.check_time_step`); the message says which
+    mode and what step would do."""

@@ -304,7 +304,7 @@ def write_csv(path, motion) -> str:
 # ---------------------------------------------------------------------------------------
 def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=True, plots=True, animation=True,
                   save_solution=True, fidelity_report=None, extra_provenance=None, mp4=True, log=None,
-                  time_step=None) -> dict:
+                  time_step=None, stopped=None, phase=None, stop_reason=None) -> dict:
     """Write ``out_dir/``: ``solution.npz``, ``trajectory.csv``, the PNG plots
     (``joints.png``, ``torques.png``, ``contacts.png`` when there is contact,
     ``paths.png``), ``animation.gif`` (and ``animation.mp4`` if ffmpeg is on PATH) and,
@@ -312,35 +312,59 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
     solution's ``info`` and the provenance so ``cstorm animate`` can rebuild the problem.
 
     The solution is saved first (a failure later loses no solve); a fidelity check or
-    a picture that fails (or a Ctrl-C during the fidelity check) is recorded in the
-    summary's ``warnings`` (and the fidelity as not ok) instead of losing the other
-    files. ``time_step``: per-segment `cstorm.check_time_step` results to record (see
-    `make_summary`; a segment whose step is not ok also adds a ``warnings`` entry).
-    Returns the summary dict (with ``files``: the names written)."""
+    a picture that fails is recorded in the summary's ``warnings`` (and the fidelity as
+    not ok) instead of losing the other files. ``time_step``: per-segment
+    `cstorm.check_time_step` results to record (see `make_summary`; a segment whose step
+    is not ok also adds a ``warnings`` entry).
+
+    Stopping. ``stopped`` (a reason, e.g. ``"SIGTERM"``) says the solve was stopped
+    before it ended: only ``solution.npz``, ``trajectory.csv`` and ``summary.json`` are
+    written (no fidelity check, success criteria or pictures), and the summary has
+    ``success: false`` and ``stopped: {"reason", "phase"}``. A KeyboardInterrupt during
+    the fidelity check, the success criteria or the pictures does the same from there on
+    (reason ``stop_reason()`` when given and not None, else ``"KeyboardInterrupt"``). ``phase(name)`` is called as each phase starts
+    (``"fidelity"``, ``"success criteria"``, ``"pictures"``, ``"animation"``, and
+    ``"writing"`` after each; it may raise KeyboardInterrupt to stop there). Returns the summary dict (with
+    ``files``: the names written)."""
 
     os.makedirs(out_dir, exist_ok=True)
     say = log or (lambda msg: None)
+    enter = phase or (lambda name: None)
+    interrupted = lambda: (stop_reason() if stop_reason else None) or "KeyboardInterrupt"
     warnings_ = []
     files = []
+    stop = dict(reason=str(stopped), phase="solving") if stopped else None
     npz = os.path.join(out_dir, "solution.npz")
     if source is not None:
         solution.info = dict(solution.info or {}, source=source)
     if save_solution:
         solution.save(npz)
         files.append("solution.npz")
-    if fidelity_report is None and check_fidelity:
+    if fidelity_report is None and check_fidelity and stop is None:
         torques = any("ctrl" not in s.trajectory for s in (solution.segments or [solution]))
-        say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
-                                                                    "with DOP853") + " ...")
         try:
+            enter("fidelity")
+            say("fidelity: re-simulating every segment at dt/4 and " + ("dt/16 (held torques)" if torques else
+                                                                        "with DOP853") + " ...")
             fidelity_report = fidelity(problem, solution)
+            enter("writing")  # inside the try: a signal until here is this phase's
         except KeyboardInterrupt:
-            fidelity_report = dict(ok=False, flags=["fidelity check interrupted (Ctrl-C)"])
-            warnings_.append("fidelity check interrupted (Ctrl-C)")
+            enter("writing")
+            stop = dict(reason=interrupted(), phase="fidelity")
+            fidelity_report = None
         except Exception as e:  # recorded, not fatal: the solve's files still get written
+            enter("writing")
             fidelity_report = dict(ok=False, flags=[f"fidelity check failed: {type(e).__name__}: {e}"])
             warnings_.append(f"fidelity check failed: {type(e).__name__}: {e}")
-    criteria, per_seg = all_criteria(problem, solution)
+    criteria, per_seg = {}, None  # stopped: not evaluated (they can simulate: hold tests)
+    if stop is None:
+        try:
+            enter("success criteria")
+            criteria, per_seg = all_criteria(problem, solution)
+            enter("writing")
+        except KeyboardInterrupt:
+            enter("writing")
+            stop = dict(reason=interrupted(), phase="success criteria")
     summary = make_summary(problem, solution, fidelity_report=fidelity_report, criteria=criteria,
                            per_segment_criteria=per_seg, source=source, extra_provenance=extra_provenance,
                            time_step=time_step)
@@ -364,11 +388,23 @@ def write_outputs(problem, solution, out_dir, *, source=None, check_fidelity=Tru
     files.append("trajectory.csv")
     for what, kw in (("plots", dict(plots=plots, animation=False)), ("animation", dict(plots=False,
                                                                                        animation=animation))):
+        if stop is not None or not any(kw.values()):
+            continue
         try:
+            enter("pictures" if what == "plots" else "animation")
             files += render(motion, out_dir, mp4=mp4, log=say, **kw)
+            enter("writing")
+        except KeyboardInterrupt:
+            enter("writing")
+            stop = dict(reason=interrupted(), phase="pictures" if what == "plots" else "animation")
         except Exception as e:
+            enter("writing")
             warnings_.append(f"{what} failed: {type(e).__name__}: {e}")
             say(f"warning: {what} failed: {type(e).__name__}: {e}")
+    if stop is not None:
+        summary["success"] = False
+        summary["stopped"] = stop
+        summary["message"] = f"stopped ({stop['reason']}) during {stop['phase']}: {summary['message']}"
     summary["warnings"] = warnings_
     summary["files"] = sorted(files + ["summary.json"])
     write_json(os.path.join(out_dir, "summary.json"), summary)

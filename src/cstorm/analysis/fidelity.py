@@ -57,6 +57,7 @@ from ..errors import DivergenceError, InputError
 from ..optimize.ddp_problem import resimulate as resimulate_torques
 from ..simulate import dynamics_stage, simulate
 from .segments import problem_segments, segment_solutions
+from ..progress import bar as progress_bar
 
 __all__ = ["fidelity", "resimulate", "static_contact_fn", "CHECKS", "DEVIATION_KEYS"]
 
@@ -91,7 +92,7 @@ def resimulate(problem, ctrl, q0, v0, dt, integrator):
         kw = dict(contact_fn=static_contact_fn(problem))
     return simulate(problem.model, q0, v0, t_final=problem.t_final, dt=dt, active=problem.active, ctrl=ctrl,
                     spline=problem.spline, integrator=integrator, q_bound=problem.q_bound, v_bound=problem.v_bound,
-                    **kw)
+                    check=False, **kw)
 
 
 def _qdot_passive(model, layout, q, v):
@@ -306,52 +307,55 @@ def fidelity(problem, solution, *, checks=("fine", "dop853"), factor: int = 4,
     segs, sols = problem_segments(problem), segment_solutions(solution)
     segs = segs[:len(sols)]  # an interrupted sequence: check the segments that were solved
     seg_reports = []
-    for p, s in zip(segs, sols):
-        tr = s.trajectory
-        q_plan, v_plan = np.asarray(tr["q"]), np.asarray(tr["v"])
-        t_plan = np.asarray(tr["t"], float)
-        torques = "ctrl" not in tr  # a DDP solution: motor torques held over each step
-        ctrl = np.asarray(tr["u"] if torques else tr["ctrl"])
-        entries = []
-        for name in (_TORQUE_CHECKS if torques else checks):
-            tc = time.perf_counter()
-            if name == "dop853":
-                entry = dict(name=name, integrator="dop853 (scipy, adaptive)", rtol=rtol, atol=atol)
-            else:
-                integ = p.integrator if name == "fine" else _OTHER[p.integrator]
-                entry = dict(name=name, integrator=integ, dt=p.dt / factor, steps=p.n_steps * factor)
-            if name == "finer":
-                entry = dict(name=name, integrator=p.integrator, dt=p.dt / (4 * factor), steps=p.n_steps * 4 * factor)
-            try:
-                if torques:
-                    f_ = factor if name == "fine" else 4 * factor
-                    Q, V = resimulate_torques(p, ctrl, q_plan[0], v_plan[0], f_, entry["integrator"])
-                elif name == "dop853":
-                    Q, V, nfev = _adaptive(p, ctrl, q_plan[0], v_plan[0], t_plan, rtol=rtol, atol=atol)
-                    entry["rhs_evaluations"] = nfev
+    with progress_bar(sum(len(_TORQUE_CHECKS if "ctrl" not in s.trajectory else checks) for s in sols), "fidelity") as pbar:
+        for p, s in zip(segs, sols):
+            tr = s.trajectory
+            q_plan, v_plan = np.asarray(tr["q"]), np.asarray(tr["v"])
+            t_plan = np.asarray(tr["t"], float)
+            torques = "ctrl" not in tr  # a DDP solution: motor torques held over each step
+            ctrl = np.asarray(tr["u"] if torques else tr["ctrl"])
+            entries = []
+            for name in (_TORQUE_CHECKS if torques else checks):
+                tc = time.perf_counter()
+                if name == "dop853":
+                    entry = dict(name=name, integrator="dop853 (scipy, adaptive)", rtol=rtol, atol=atol)
                 else:
-                    sim = resimulate(p, ctrl, q_plan[0], v_plan[0], p.dt / factor, integ)
-                    Q, V = sim.q[::factor], sim.v[::factor]
-            except DivergenceError as e:
-                entry.update({k: None for k in DEVIATION_KEYS}, diverged=True, ok=False,
-                             flags=[f"{entry['integrator']}: re-simulation diverged: {e}"],
-                             wall_time_s=time.perf_counter() - tc)
+                    integ = p.integrator if name == "fine" else _OTHER[p.integrator]
+                    entry = dict(name=name, integrator=integ, dt=p.dt / factor, steps=p.n_steps * factor)
+                if name == "finer":
+                    entry = dict(name=name, integrator=p.integrator, dt=p.dt / (4 * factor), steps=p.n_steps * 4 * factor)
+                try:
+                    if torques:
+                        f_ = factor if name == "fine" else 4 * factor
+                        Q, V = resimulate_torques(p, ctrl, q_plan[0], v_plan[0], f_, entry["integrator"])
+                    elif name == "dop853":
+                        Q, V, nfev = _adaptive(p, ctrl, q_plan[0], v_plan[0], t_plan, rtol=rtol, atol=atol)
+                        entry["rhs_evaluations"] = nfev
+                    else:
+                        sim = resimulate(p, ctrl, q_plan[0], v_plan[0], p.dt / factor, integ)
+                        Q, V = sim.q[::factor], sim.v[::factor]
+                except DivergenceError as e:
+                    entry.update({k: None for k in DEVIATION_KEYS}, diverged=True, ok=False,
+                                 flags=[f"{entry['integrator']}: re-simulation diverged: {e}"],
+                                 wall_time_s=time.perf_counter() - tc)
+                    entries.append(entry)
+                    pbar.update()
+                    continue
+                dev = _passive_deviation(p.model, p.layout, q_plan[-1], v_plan[-1], Q[-1], V[-1])
+                n = min(len(Q), len(q_plan))
+                path = [_passive_deviation(p.model, p.layout, q_plan[k], v_plan[k], Q[k], V[k])
+                        for k in range(0, n, max(1, n // 400))] + [dev]
+                pmax = lambda key: max([d[key] for d in path if d[key] is not None], default=None)
+                entry.update(dev, path_position_m=pmax("position_m"), path_angle_deg=pmax("angle_deg"), diverged=False)
+                label = entry["integrator"] + (f" at dt={entry['dt']:g} s" if "dt" in entry else "")
+                flags_ = deviation_flags(dev, tol_position_m, tol_angle_deg, tol_velocity_m_s, tol_angular_velocity_deg_s)
+                entry["flags"] = [f"{label}: {b}" for b in flags_]
+                entry["ok"] = not entry["flags"]
+                entry["wall_time_s"] = time.perf_counter() - tc
                 entries.append(entry)
-                continue
-            dev = _passive_deviation(p.model, p.layout, q_plan[-1], v_plan[-1], Q[-1], V[-1])
-            n = min(len(Q), len(q_plan))
-            path = [_passive_deviation(p.model, p.layout, q_plan[k], v_plan[k], Q[k], V[k])
-                    for k in range(0, n, max(1, n // 400))] + [dev]
-            pmax = lambda key: max([d[key] for d in path if d[key] is not None], default=None)
-            entry.update(dev, path_position_m=pmax("position_m"), path_angle_deg=pmax("angle_deg"), diverged=False)
-            label = entry["integrator"] + (f" at dt={entry['dt']:g} s" if "dt" in entry else "")
-            flags_ = deviation_flags(dev, tol_position_m, tol_angle_deg, tol_velocity_m_s, tol_angular_velocity_deg_s)
-            entry["flags"] = [f"{label}: {b}" for b in flags_]
-            entry["ok"] = not entry["flags"]
-            entry["wall_time_s"] = time.perf_counter() - tc
-            entries.append(entry)
-        seg_reports.append(dict(segment=p.name, ok=all(c["ok"] for c in entries), checks=entries,
-                                **_worst(entries)))
+                pbar.update()
+            seg_reports.append(dict(segment=p.name, ok=all(c["ok"] for c in entries), checks=entries,
+                                    **_worst(entries)))
     all_checks = [c for r in seg_reports for c in r["checks"]]
     flags = [f"{r['segment']}: {f}" if len(seg_reports) > 1 else f for r in seg_reports for c in r["checks"]
              for f in c["flags"]]

@@ -386,10 +386,48 @@ def check_time_step(problem, q=None, v=None, *, integrator=None, dt=None, along=
       nothing was rolled out), ``message`` (one line: what to do), ``wall_time_s``.
     """
 
-    t0 = time.perf_counter()
     if not isinstance(problem, MotionProblem):
         raise InputError(f"check_time_step: expected a MotionProblem (for a sequence, check each of its .segments), "
                          f"got {type(problem).__name__}")
+    return _check(problem, q, v, integrator=integrator, dt=dt, along=along, n_states=n_states)
+
+
+class _Rollout:
+    """What the check reads of a problem, for a plain rollout (`check_rollout`)."""
+
+    def __init__(self, model, layout, integrator, dt, env, contact, contact_fn):
+        self.model, self.layout, self.integrator, self.dt = model, layout, integrator, float(dt)
+        self.env, self.contact = env, contact
+        self.contact_fn = None if contact_fn is None else (lambda m, e, c, q, v: contact_fn(q, v))
+        self.q0 = self.v0 = None
+        self.shooting = 1
+
+
+_rollout_adapters: dict = {}
+
+
+def check_rollout(model, layout, trajectory, *, dt, integrator="rk4", env=None, contact=None, contact_fn=None,
+                  n_states: int = 51) -> dict:
+    """`check_time_step` along a trajectory of `cstorm.simulate` (``q``, ``v``, ``a``,
+    ``t`` arrays of a `Trajectory` or dict) rolled out with ``layout`` (a
+    `cstorm.simulate.RolloutLayout`), step ``dt`` and ``integrator``, with the contact
+    of ``env``/``contact`` or the user's ``contact_fn`` (``(q, v) -> (f_ext, data)``; the
+    compiled linearization is kept per function). Returns the same dict."""
+    key = (id(contact_fn), layout) if contact_fn is not None else None
+    if key is not None and key in _rollout_adapters:
+        ad = _rollout_adapters[key][1]
+        ad.model, ad.integrator, ad.dt, ad.env, ad.contact = model, integrator, float(dt), env, contact
+    else:
+        ad = _Rollout(model, layout, integrator, dt, env, contact, contact_fn)
+        if key is not None:
+            _rollout_adapters[key] = (contact_fn, ad)  # keeps the function alive: its id stays its own
+    tr = trajectory if isinstance(trajectory, dict) else dict(q=trajectory.q, v=trajectory.v, a=trajectory.a,
+                                                               t=trajectory.t)
+    return _check(ad, along=dict(tr), n_states=n_states)
+
+
+def _check(problem, q=None, v=None, *, integrator=None, dt=None, along=None, n_states=201):
+    t0 = time.perf_counter()
     integ = problem.integrator if integrator is None else integrator
     if integ not in INTEGRATORS:
         raise InputError(f"check_time_step: integrator must be one of {INTEGRATORS}, got {integ!r}")

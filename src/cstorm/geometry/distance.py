@@ -27,6 +27,7 @@ the GJK/EPA path where a closed form exists (tests compare the two). Works under
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from ..errors import ShapeError
@@ -44,7 +45,11 @@ def _split(T):
 
 
 def signed_distance(shape_a, pose_a, shape_b, pose_b, method: str = "auto"):
-    """Signed distance ``(d, p_a, p_b, n)`` between two shapes; see the module docstring."""
+    """Signed distance ``(d, p_a, p_b, n)`` between two shapes; see the module docstring.
+
+    Compiled once per pair of shape types (and mesh size) and ``method``: a call with
+    new sizes or poses reuses the compiled code, so a loop of eager calls over many
+    pairs does not compile (and map into memory) new code for each."""
     for name, s in (("shape_a", shape_a), ("shape_b", shape_b)):
         if not isinstance(s, Shape):
             raise ShapeError(f"signed_distance: {name} must be a cstorm shape, got {type(s).__name__}")
@@ -52,9 +57,12 @@ def signed_distance(shape_a, pose_a, shape_b, pose_b, method: str = "auto"):
         raise ShapeError(f"signed_distance: method must be 'auto' or 'iterative', got {method!r}")
     if isinstance(shape_a, Plane) and isinstance(shape_b, Plane):
         raise ShapeError("signed_distance: plane vs plane is not supported (unbounded)")
-    pose_a, pose_b = jnp.asarray(pose_a), jnp.asarray(pose_b)
+    return _signed_distance_jit(shape_a, jnp.asarray(pose_a), shape_b, jnp.asarray(pose_b), method=method)
+
+
+def _signed_distance(shape_a, pose_a, shape_b, pose_b, method):
     if isinstance(shape_a, Plane):
-        d, p_b, p_a, n = signed_distance(shape_b, pose_b, shape_a, pose_a, method)
+        d, p_b, p_a, n = _signed_distance(shape_b, pose_b, shape_a, pose_a, method)
         return d, p_a, p_b, -n
     Ra, ta = _split(pose_a)
     Rb, tb = _split(pose_b)
@@ -69,3 +77,6 @@ def signed_distance(shape_a, pose_a, shape_b, pose_b, method: str = "auto"):
     _, r_b = core_of(shape_b)
     d, q_a, q_b, n = core_signed_distance(shape_a, pose_a, shape_b, pose_b)
     return d - r_a - r_b, q_a - r_a * n, q_b + r_b * n, n
+
+
+_signed_distance_jit = jax.jit(_signed_distance, static_argnames=("method",))

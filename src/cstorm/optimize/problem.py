@@ -51,6 +51,7 @@ one compiled function.
 from __future__ import annotations
 
 import hashlib
+import os
 import json
 import math
 
@@ -62,6 +63,7 @@ from ..contact import contact_forces
 from ..dynamics.configuration import difference, integrate
 from ..errors import ProblemError
 from ..simulate import RolloutLayout, active_paths, rollout, time_grid, DERIVATIVES, INTEGRATORS
+from ..simulate.steps import n_steps
 from ..trajectory import QuinticBSpline
 from . import costs as _costs
 from . import constraints as _cons
@@ -115,6 +117,43 @@ class _NoSteps(dict):
                            "constraint class (see cstorm.optimize.constraints.Constraint)")
 
 
+def available_memory() -> int | None:
+    """Bytes of memory this process can still get: ``MemAvailable`` of /proc/meminfo
+    (Linux), else the physical memory; None where neither is known."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):  # pragma: no cover
+        return None
+
+
+def memory_estimate(n_steps, n_ctrl, n_active, nq, nv, shooting=1) -> int:
+    """A lower estimate of the bytes one values-and-Jacobian evaluation of a problem
+    holds at once: the spline basis on the grid (six (N+1, n_ctrl) matrices), the
+    trajectory (q, v, a, tau per step) and the state's tangent with respect to every
+    decision variable at every step ((nq + nv) x n_vars per step), all float64."""
+    N1 = int(n_steps) + 1
+    n_vars = int(n_ctrl) * int(n_active) + 2 * nv * max(0, int(shooting) - 1)
+    return 8 * N1 * (6 * int(n_ctrl) + nq + 3 * nv + (nq + nv) * max(1, n_vars))
+
+
+def check_memory(n_steps, n_ctrl, n_active, nq, nv, shooting=1, name="motion"):
+    """Raise `ProblemError` with the estimate (`memory_estimate`) when it exceeds the
+    memory available (`available_memory`), before anything of that size is allocated."""
+    need = memory_estimate(n_steps, n_ctrl, n_active, nq, nv, shooting)
+    have = available_memory()
+    if have is not None and need > have:
+        raise ProblemError(f"MotionProblem {name!r}: {n_steps} steps with {n_ctrl} control points per active joint "
+                           f"need at least {need / 2**30:.3g} GiB of memory, more than the {have / 2**30:.3g} GiB "
+                           "available; shorten t_final, enlarge dt or use fewer control points (n_ctrl)")
+
+
 class MotionProblem:
     """One motion segment.
 
@@ -123,7 +162,7 @@ class MotionProblem:
       active: names of the active joints (1-DoF; their paths are the decision variables).
         All other DoFs are passive (zero torque plus springs/dampers/limits and contact).
       t_final: duration (s). n_ctrl: control points per active joint (>= 6).
-      dt: integration step (s); ``N = round(t_final / dt)``.
+      dt: integration step (s); ``t_final`` must be a whole number ``N`` of steps.
       q0: (nq,) initial configuration. v0: (nv,) initial velocity (default zeros).
       env, contact: optional environment and `ContactParams` (see `cstorm.contact`); with
         them the rollout adds contact wrenches and records per-point contact data.
@@ -209,6 +248,12 @@ class MotionProblem:
             raise ProblemError(f"MotionProblem: integrator must be one of {INTEGRATORS}, got {integrator!r}")
         self.integrator = integrator
         self.t_final = float(t_final)
+        if isinstance(n_ctrl, bool) or not isinstance(n_ctrl, (int, np.integer, float, np.floating)) or \
+                not float(n_ctrl).is_integer():
+            raise ProblemError(f"MotionProblem: n_ctrl (control points per active joint) must be a whole number, "
+                               f"got {n_ctrl!r}")
+        check_memory(n_steps(self.t_final, dt), int(n_ctrl), self.layout.n_active, model.nq, model.nv,
+                     int(shooting) if isinstance(shooting, (int, np.integer)) else 1, name)
         self.spline = QuinticBSpline(int(n_ctrl), self.t_final)
         self.n_steps, self.dt, self.t = time_grid(self.t_final, dt)
         self.q0 = np.asarray(q0, dtype=float).reshape(-1)
@@ -621,13 +666,17 @@ class MotionProblem:
     def compiled(self, which="fun_jac"):
         """Jitted functions of ``(x, data)`` (compiled on first use, once per problem):
         ``"fun_jac"`` -> (f, c_eq, c_in, diverged, grad f, J_eq, J_in); ``"fun"`` -> (f,
-        c_eq, c_in, diverged); ``"trajectory"`` -> `trajectory`."""
+        c_eq, c_in, diverged); ``"fun_batch"`` -> ``"fun"`` of a batch ``x`` (B, n_vars),
+        each output with a leading axis B; ``"trajectory"`` -> `trajectory`."""
         if which not in self._compiled:
             if which == "fun_jac":
                 self._compiled[which] = jax.jit(self._fun_jac)
             elif which == "fun":
                 self._compiled[which] = jax.jit(
                     lambda x, d: (lambda r: (r["f"], r["c_eq"], r["c_in"], r["diverged"]))(self.evaluate(x, d)))
+            elif which == "fun_batch":
+                one = lambda x, d: (lambda r: (r["f"], r["c_eq"], r["c_in"], r["diverged"]))(self.evaluate(x, d))
+                self._compiled[which] = jax.jit(jax.vmap(one, in_axes=(0, None)))
             elif which == "trajectory":
                 self._compiled[which] = jax.jit(self.trajectory)
             else:

@@ -9,6 +9,7 @@ step and solve options (continuation, staging).
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numpy as np
@@ -56,29 +57,60 @@ class MotionSequence:
         return f"MotionSequence({self.name!r}, {len(self.segments)} segments)"
 
     def solve_segments(self, solve_one, *, method, continuation, schedule, max_iter, tol, constraint_tol, verbose,
-                       callback, checkpoint, options, out, objective_scale="auto"):
+                       callback, checkpoint, options, out, objective_scale="auto", resume=None):
         """Solve the segments in order with ``solve_one(segment, q0=..., v0=..., **options)``
         (`cstorm.solve`'s single-problem solver), each from the previous one's final
         state, and return the sequence's `Solution` (its ``segments`` hold the segments'
         solutions, its trajectory their concatenation). Stops after an interrupted
-        segment. ``checkpoint``: segment ``k`` writes ``{checkpoint}.seg{k}.npz``."""
+        segment. With ``checkpoint=path`` segment ``k`` writes its iterates to
+        ``path.seg<k>.npz`` and, once solved (not interrupted), its solution to
+        ``path.seg<k>.done.npz``; ``resume=path`` takes every segment whose
+        ``.done.npz`` belongs to it (same problem hash) as solved and continues the
+        first other one from its ``.seg<k>.npz`` when there is one. A KeyboardInterrupt
+        stops the sequence and returns the segments solved so far (one raised before the
+        first segment has an iterate propagates)."""
+        from .solution import load_solution
         sols = []
         q0 = v0 = None
+        stopped_between = False
+        resuming = resume is not None
         # (the background compile builds the SQP transcription's functions; DDP compiles its own)
-        warm = (_Precompiler(self.segments[1:], first=self.segments[0])
-                if self.solve_options.get("precompile", True) and method != "ddp" else None)
+        warm = None
         for k, seg in enumerate(self.segments):
             ck = None if checkpoint is None else f"{checkpoint}.seg{k}.npz"
-            if warm is not None and k > 0:
-                warm.wait(k - 1)  # its compile, started in the background, is done (or failed)
-            s = solve_one(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
-                          tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
-                          checkpoint=ck, options=options, out=out, q0=q0, v0=v0, objective_scale=objective_scale)
+            rk = None
+            if resuming:
+                prev = _load_done(f"{resume}.seg{k}.done.npz", seg, load_solution)
+                if prev is not None:
+                    sols.append(prev)
+                    q0, v0 = prev.trajectory["q"][-1], prev.trajectory["v"][-1]
+                    if verbose:
+                        print(f"{seg.name}: solved in an earlier run ({resume}.seg{k}.done.npz)", file=out)
+                    continue
+                resuming = False
+                rk = f"{resume}.seg{k}.npz" if os.path.exists(f"{resume}.seg{k}.npz") else None
+            if warm is None and self.solve_options.get("precompile", True) and method != "ddp" and \
+                    k + 1 < len(self.segments):
+                warm = (k, _Precompiler(self.segments[k + 1:], first=seg))
+            try:
+                if warm is not None and k > warm[0]:
+                    warm[1].wait(k - warm[0] - 1)  # its compile, started in the background, is done (or failed)
+                s = solve_one(seg, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
+                              tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
+                              checkpoint=ck, options=options, out=out, q0=q0, v0=v0,
+                              objective_scale=objective_scale, resume=rk)
+            except KeyboardInterrupt:
+                if not sols:
+                    raise
+                stopped_between = True  # before this segment had an iterate: keep the solved ones
+                break
             s.segments = []
             sols.append(s)
             q0, v0 = s.trajectory["q"][-1], s.trajectory["v"][-1]
             if s.status is Status.INTERRUPTED:
                 break
+            if checkpoint is not None:
+                s.save(f"{checkpoint}.seg{k}.done.npz")
         # concatenated trajectory (the first point of later segments is the previous end)
         keys = ("q", "v", "a", "tau")
         traj = {k: [sols[0].trajectory[k]] for k in keys}
@@ -97,7 +129,7 @@ class MotionSequence:
         message = "all segments solved" if success else (
             f"segment(s) {bad} failed: " + "; ".join(sols[k].message for k in bad) if bad else
             f"stopped after {len(sols)} of {len(self.segments)} segments")
-        interrupted = any(s.status is Status.INTERRUPTED for s in sols)
+        interrupted = stopped_between or any(s.status is Status.INTERRUPTED for s in sols)
         status = Status.SOLVED if success else (Status.INTERRUPTED if interrupted else
                                                  next(s.status for s in sols if not s.success))
         return Solution(success=success, status=status, message=message, cost=float(sum(s.cost for s in sols)),
@@ -108,6 +140,18 @@ class MotionSequence:
                         compile_time_s=float(sum(s.compile_time_s for s in sols)),
                         n_evaluations=int(sum(s.n_evaluations for s in sols)),
                         info=dict(segments=[s.problem for s in sols]))
+
+
+def _load_done(path, seg, load_solution):
+    """The solution of ``seg`` saved at ``path`` by an earlier run, or None (no file, or
+    a file of another problem)."""
+    if not os.path.exists(path):
+        return None
+    s = load_solution(path)
+    if (s.info or {}).get("problem_hash") != seg.hash():
+        return None
+    s.segments = []
+    return s
 
 
 class _Precompiler:

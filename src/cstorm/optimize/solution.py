@@ -8,13 +8,13 @@ import dataclasses
 import enum
 import json
 import os
-import tempfile
 from typing import Any
 
 import numpy as np
 import jax
 
 from ..errors import InputError
+from ..io.files import atomic_savez
 
 __all__ = ["Solution", "Status", "load_solution", "atomic_savez", "contact_dict"]
 
@@ -173,24 +173,6 @@ def _py(x):
     if isinstance(x, float) and not np.isfinite(x):
         return float(x)
     return x
-
-
-def atomic_savez(path, arrays: dict):
-    """``np.savez`` to a temporary file in the same folder, then ``os.replace``."""
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _build(meta, arrays, prefix):

@@ -46,7 +46,7 @@ from .bounds import clip_into, stage_bounds, variable_bounds
 from .sequence import MotionSequence
 from .solution import Solution, Status, atomic_savez, contact_dict
 
-__all__ = ["solve", "SolveOptions"]
+__all__ = ["solve", "check_solve_arguments"]
 
 _BIG = 1e12
 
@@ -182,6 +182,64 @@ def _plan(problem, continuation, schedule):
 METHODS = ("slsqp", "trust-constr", "ipopt", "ddp")
 
 
+def check_solve_arguments(method="slsqp", max_iter=500, tol=1e-8, constraint_tol=1e-6, options=None):
+    """Raise `InputError` naming the argument when ``method``, ``max_iter`` (an integer
+    >= 1), ``tol`` or ``constraint_tol`` (finite, > 0) or ``options`` (keys the chosen
+    solver knows; for IPOPT any key, which IPOPT checks itself) is unusable, or when
+    ``method="ipopt"`` and casadi is not installed. Cheap: `solve` and ``cstorm solve``
+    call it before anything is compiled."""
+    import importlib.util
+
+    m = str(method).lower()
+    if m not in METHODS:
+        raise InputError(f"solve: method must be one of {list(METHODS)}, got {method!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise InputError(f"solve: max_iter must be an integer >= 1, got {max_iter!r}")
+    for name, v in (("tol", tol), ("constraint_tol", constraint_tol)):
+        try:
+            ok = math.isfinite(float(v)) and float(v) > 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise InputError(f"solve: {name} must be a finite number > 0, got {v!r}")
+    if m == "ipopt" and importlib.util.find_spec("casadi") is None:
+        raise InputError("solve: method 'ipopt' needs casadi, which is not installed: pip install 'cstorm[ipopt]' "
+                         "(or pip install casadi), or choose another method")
+    if options is None:
+        return
+    if not isinstance(options, dict):
+        raise InputError(f"solve: options must be a dict of solver options, got {type(options).__name__}")
+    known = _solver_option_names(m)
+    if known is not None:
+        bad = sorted(set(map(str, options)) - known)
+        if bad:
+            raise InputError(f"solve: unknown {m} option(s) {bad}; known: {sorted(known)}")
+
+
+def _solver_option_names(method):
+    """The ``options`` keys a method accepts (None: not checked here)."""
+    import dataclasses
+    import inspect
+
+    if method == "ddp":
+        from .ddp import DDPOptions
+
+        return {f.name for f in dataclasses.fields(DDPOptions)} - {"max_iter", "tol", "constraint_tol", "verbose"}
+    try:
+        if method == "slsqp":
+            from scipy.optimize._slsqp_py import _minimize_slsqp as fn
+            fixed = {"func", "x0", "args", "jac", "bounds", "constraints", "callback", "unknown_options"}
+        elif method == "trust-constr":
+            from scipy.optimize._trustregion_constr.minimize_trustregion_constr import \
+                _minimize_trustregion_constr as fn
+            fixed = {"fun", "x0", "args", "grad", "hess", "hessp", "bounds", "constraints", "callback"}
+        else:
+            return None
+    except ImportError:  # pragma: no cover - scipy moved its private modules: scipy checks them itself
+        return None
+    return set(inspect.signature(fn).parameters) - fixed
+
+
 def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedule=None, max_iter: int = 500,
           tol: float = 1e-8, constraint_tol: float = 1e-6, verbose: bool = False, callback=None,
           checkpoint=None, resume=None, options=None, out=None, objective_scale="auto") -> Solution:
@@ -222,8 +280,12 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
         ``iteration, stage, x, cost, violation, step, time``; raising
         KeyboardInterrupt stops the solve (the best iterate is returned), raising
         StopIteration ends the current stage.
-      checkpoint: path of an ``.npz`` written atomically after every iteration.
-      resume: path of such a checkpoint to continue from (stage and iterate).
+      checkpoint: path of an ``.npz`` written atomically after every iteration (a
+        sequence writes one per segment, ``path.seg<k>.npz``, and each solved segment's
+        solution to ``path.seg<k>.done.npz``).
+      resume: path of such a checkpoint to continue from (stage and iterate; for a
+        sequence the same ``path`` as ``checkpoint``: solved segments are taken from
+        their ``.done.npz``, the next continues from its iterate).
       options: extra solver options (scipy ``options`` / IPOPT options).
       out: stream for the progress display (default stdout).
       objective_scale: ``"auto"`` (default; ``s / |grad f|_inf`` at each stage's start,
@@ -236,10 +298,12 @@ def solve(problem, method: str = "slsqp", *, x0=None, continuation=None, schedul
       its trajectory is their concatenation.
     """
     require_x64("solve")
+    check_solve_arguments(method, max_iter, tol, constraint_tol, options)
     if isinstance(problem, MotionSequence):
         return problem.solve_segments(_solve_problem, method=method, continuation=continuation, schedule=schedule, max_iter=max_iter,
                               tol=tol, constraint_tol=constraint_tol, verbose=verbose, callback=callback,
-                              checkpoint=checkpoint, options=options, out=out, objective_scale=objective_scale)
+                              checkpoint=checkpoint, options=options, out=out, objective_scale=objective_scale,
+                              resume=resume)
     if not isinstance(problem, MotionProblem):
         raise InputError(f"solve: expected a MotionProblem or MotionSequence, got {type(problem).__name__}")
     return _solve_problem(problem, method=method, x0=x0, continuation=continuation, schedule=schedule,
@@ -284,9 +348,15 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
     if x0 is None and resume is None and problem.shooting > 1:
         x = problem.shoot_nodes(x, data0)  # the default guess's nodes: its own rollout
     tc = time.perf_counter()
+    stream = out or sys.stdout
+    if verbose:
+        print(f"{problem.name}: compiling the objective, the constraints and their derivatives ...", file=stream,
+              flush=True)
     fj = problem.compiled("fun_jac")
     fj(jnp.asarray(x), data0)[0].block_until_ready()
     compile_s = time.perf_counter() - tc
+    if verbose:
+        print(f"{problem.name}: compiled in {compile_s:.1f} s", file=stream, flush=True)
 
     tracker = _Tracker(problem, verbose, callback, checkpoint, t0, constraint_tol, iteration0=it0, out=out)
     tracker.header()

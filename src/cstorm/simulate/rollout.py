@@ -251,13 +251,13 @@ class Trajectory:
 
 def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=None, spline=None,
              integrator: str = "rk4", env=None, contact=None, contact_fn=None, cost_fn=None, params=None,
-             segment=None, q_bound: float = 1e4, v_bound: float = 1e4) -> Trajectory:
+             segment=None, q_bound: float = 1e4, v_bound: float = 1e4, check: bool = True) -> Trajectory:
     """Simulate a motion (eager, host-side results).
 
     Args:
       model: the `Model`. q0: (nq,) initial configuration; v0: (nv,) initial velocity
         (default zeros).
-      t_final, dt: duration and step (s); ``N = round(t_final / dt)`` steps.
+      t_final, dt: duration and step (s); ``t_final`` must be a whole number of steps.
       active: names of the active (1-DoF) joints; () for a free (all-passive) rollout.
       ctrl: (n_ctrl, n_active) control points of the active paths (in the order of
         ``active`` as given) on ``spline`` (a `QuinticBSpline` over ``[0, t_final]``). With
@@ -268,6 +268,13 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
         dynamic arguments (new values reuse the compiled rollout).
       integrator, contact_fn, cost_fn, params, segment, q_bound, v_bound: as `rollout`
         (``contact_fn`` and ``cost_fn`` are static: pass module-level functions).
+      check: run the time-step check (`cstorm.check_time_step`, method in
+        `cstorm.analysis.timestep`) along the result, at 51 of its states, and warn
+        (`cstorm.errors.TimeStepWarning`, saying what step would do) when ``dt`` is past
+        the integrator's stability limit there: such a rollout can settle into a hidden
+        oscillation whose velocities are not the dynamics'. Skipped without passive
+        DoFs. It compiles a linearization once per joint split and contact structure
+        (~1-10 s) and costs ~3 ms per state after; ``check=False`` skips it.
     Returns:
       `Trajectory`. Raises `DivergenceError` if the rollout diverges.
     """
@@ -305,6 +312,7 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
             raise InputError("simulate: give env/contact or contact_fn, not both")
         if contact is None:
             raise InputError("simulate: env given without contact parameters (contact=cs.ContactParams(...))")
+    contact_arg = contact
     res = _simulate_jit(model, q0, v0, paths, params, jnp.asarray(h, q0.dtype), env, contact, layout=layout, N=N,
                         integrator=integrator,
                         contact_fn=contact_fn, cost_fn=cost_fn, segment=segment, q_bound=jnp.asarray(float(q_bound)),
@@ -312,8 +320,19 @@ def simulate(model, q0, v0=None, *, t_final: float, dt: float, active=(), ctrl=N
     check_divergence(model, res, h, "simulate")
     tr = res["traj"]
     contact = None if tr["contact"] is None else jax.tree_util.tree_map(np.asarray, tr["contact"])
-    return Trajectory(t=t, q=np.asarray(tr["q"]), v=np.asarray(tr["v"]), a=np.asarray(tr["a"]),
-                      tau=np.asarray(tr["tau"]), cost=float(res["J"]), contact=contact)
+    out = Trajectory(t=t, q=np.asarray(tr["q"]), v=np.asarray(tr["v"]), a=np.asarray(tr["a"]),
+                     tau=np.asarray(tr["tau"]), cost=float(res["J"]), contact=contact)
+    if check and layout.vp_idx:
+        import warnings
+
+        from ..analysis.timestep import check_rollout
+        from ..errors import TimeStepWarning
+
+        r = check_rollout(model, layout, out, dt=float(h), integrator=integrator, env=env, contact=contact_arg,
+                          contact_fn=contact_fn)
+        if r["ok"] is False:
+            warnings.warn(f"simulate: {r['message']}", TimeStepWarning, stacklevel=2)
+    return out
 
 
 @functools.partial(jax.jit, static_argnames=("layout", "N", "integrator", "contact_fn", "cost_fn", "segment"))

@@ -91,15 +91,30 @@ class RolloutLayout:
 
 
 def time_grid(t_final: float, dt: float):
-    """``(N, dt_exact, t (N+1,))``: the number of steps ``N = round(t_final / dt)`` (>= 1)
-    and the step that makes ``N dt = t_final`` exactly."""
+    """``(N, dt_exact, t (N+1,))``: the number of steps ``N = t_final / dt`` and the step
+    that makes ``N dt = t_final`` exactly (``dt`` up to rounding, relative 1e-9). Raises
+    `InputError` naming both when ``t_final`` is not a whole number of steps ``dt``: a
+    silently changed step would change the physics (stability and accuracy of the
+    integrator)."""
+    N = n_steps(t_final, dt)
+    T = float(t_final)
+    return N, T / N, np.linspace(0.0, T, N + 1)
+
+
+def n_steps(t_final: float, dt: float) -> int:
+    """The number of steps of `time_grid`, checked as there, without allocating."""
     T, h = float(t_final), float(dt)
     if not (math.isfinite(T) and T > 0):
         raise InputError(f"t_final must be finite and > 0, got {t_final!r}")
     if not (math.isfinite(h) and 0 < h <= T):
         raise InputError(f"dt must be finite, > 0 and <= t_final={T}, got {dt!r}")
-    N = max(1, int(round(T / h)))
-    return N, T / N, np.linspace(0.0, T, N + 1)
+    r = T / h
+    N = max(1, int(round(r)))
+    if abs(N - r) > 1e-9 * max(1.0, r):
+        down = T / math.ceil(r)
+        raise InputError(f"t_final={T:g} s is not a multiple of dt={h:g} s (t_final / dt = {r:.6g}); choose a dt "
+                         f"that divides it, e.g. dt={down:.6g} ({math.ceil(r)} steps)")
+    return N
 
 
 def active_paths(spline: QuinticBSpline, n_steps: int, integrator: str = "rk4"):

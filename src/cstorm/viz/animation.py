@@ -25,6 +25,7 @@ import numpy as np
 
 from ..io.files import atomic_write
 from .planar import draw_obstacles, robot_extent, robot_outlines, skeleton
+from ..progress import bar as progress_bar
 
 
 def frame_indices(t, fps=25.0, max_frames=2000):
@@ -127,30 +128,32 @@ def render_frames(motion, *, fps=25.0, size=(6.4, 4.0), dpi=100, max_frames=2000
     bg = fig.canvas.copy_from_bbox(fig.bbox)
     frames = []
     nseg = len(motion.segment_names)
-    for f, i in enumerate(idx):
-        fig.canvas.restore_region(bg)
-        for g in range(ngeo):
-            patches[g].set_xy(outlines[f][g])
-        sg, jp, ap = skel[f]
-        bones.set_segments(sg)
-        jdots.set_data(jp[:, 0], jp[:, 1])
-        anch.set_data(ap[:, 0], ap[:, 1])
-        trace.set_data(com[:i + 1, 0], com[:i + 1, 2])
-        dot.set_data([com[i, 0]], [com[i, 2]])
-        if arrows is not None:
-            P = c["p_robot"][i]
-            V = F[f] * scale * shown[f][:, None]
-            arrows.set_offsets(P[:, [0, 2]])
-            arrows.set_UVC(V[:, 0], V[:, 2])
-        txt = f"t = {motion.t[i]:6.2f} s"
-        if nseg > 1:
-            s = int(motion.segment_index[i])
-            txt += f"   {s + 1}/{nseg} {motion.segment_names[s]}"
-        label.set_text(txt)
-        for a in dyn:
-            ax.draw_artist(a)
-        fig.canvas.blit(fig.bbox)
-        frames.append(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy())
+    with progress_bar(len(idx), "animation frames") as pbar:
+        for f, i in enumerate(idx):
+            fig.canvas.restore_region(bg)
+            for g in range(ngeo):
+                patches[g].set_xy(outlines[f][g])
+            sg, jp, ap = skel[f]
+            bones.set_segments(sg)
+            jdots.set_data(jp[:, 0], jp[:, 1])
+            anch.set_data(ap[:, 0], ap[:, 1])
+            trace.set_data(com[:i + 1, 0], com[:i + 1, 2])
+            dot.set_data([com[i, 0]], [com[i, 2]])
+            if arrows is not None:
+                P = c["p_robot"][i]
+                V = F[f] * scale * shown[f][:, None]
+                arrows.set_offsets(P[:, [0, 2]])
+                arrows.set_UVC(V[:, 0], V[:, 2])
+            txt = f"t = {motion.t[i]:6.2f} s"
+            if nseg > 1:
+                s = int(motion.segment_index[i])
+                txt += f"   {s + 1}/{nseg} {motion.segment_names[s]}"
+            label.set_text(txt)
+            for a in dyn:
+                ax.draw_artist(a)
+            fig.canvas.blit(fig.bbox)
+            frames.append(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy())
+            pbar.update()
     plt.close(fig)
     return frames, fps_eff
 

@@ -21,12 +21,10 @@ DEMO_PROBLEM = "tumbler"
 def write_model_info(out: str, model) -> str:
     """Write ``<model.name>_info.txt`` (`cstorm.model.info.describe`) into ``out``;
     returns the text."""
+    from ..io.files import write_text
     from ..model.info import describe
 
     text = describe(model)
     path = os.path.join(out, f"{model.name}_info.txt")
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(text + "\n")
-    os.replace(tmp, path)
+    write_text(path, text + "\n")
     return text

@@ -614,7 +614,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     # the rows now hold to first order: their multipliers become the LQ
                     # step's (the penalties' gradient at c = 0 plus nu), so that the
                     # penalty-only steps that follow do not pull the rows back
-                    al = _shift_end_multipliers(al, pj["nu"], ocp.n_eq)
+                    al = _shift_end_multipliers(al, pj["nu"], ocp.n_eq, ev)
                     accepted = dict(accepted, **{k: v for k, v in C.evaluate(X, U, data, al).items() if k != "gaps"})
                 gap_new = float(jnp.max(jnp.linalg.norm(accepted["gaps"], axis=1)))
                 ev = dict(accepted)
@@ -655,10 +655,15 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                      multipliers={k: np.asarray(v) for k, v in al.items()})
 
 
-def _shift_end_multipliers(al, nu, n_eq):
+def _shift_end_multipliers(al, nu, n_eq, ev):
     """``al`` with the final node's multipliers moved by the LQ multipliers ``nu``
     (`_Compiled._project`; the equality rows' ``lambda + nu``, the inequality rows'
-    ``max(0, lambda - nu)``: PHR's ``lambda`` multiplies ``-c_in``)."""
+    ``max(0, lambda - nu)``: PHR's ``lambda`` multiplies ``-c_in``), each move no larger
+    than the augmented Lagrangian's own update at the iterate before the step (``mu |c|``
+    of the row, ``ev``): a nearly singular row system gives huge ``nu``, which would
+    make the penalties unbounded below."""
+    cap = jnp.concatenate([al["mu_eq"][-1] * jnp.abs(ev["ce"][-1]), al["mu_in"][-1] * jnp.abs(ev["ci"][-1])])
+    nu = jnp.clip(nu, -cap, cap)
     out = dict(al)
     out["lam_eq"] = al["lam_eq"].at[-1].add(nu[:n_eq])
     out["lam_in"] = al["lam_in"].at[-1].set(jnp.maximum(0.0, al["lam_in"][-1] - nu[n_eq:]))

@@ -125,7 +125,7 @@ def test_diverged_final_iterate_keeps_the_last_sound_stage(problem, monkeypatch)
     import importlib
 
     S = importlib.import_module("cstorm.optimize.solve")  # (cstorm.optimize.solve is the function)
-    real = S._run_slsqp
+    real = S.run_slsqp
     calls = []
 
     def run(ev, x, tracker, si, params, it, tol, options):
@@ -135,7 +135,7 @@ def test_diverged_final_iterate_keeps_the_last_sound_stage(problem, monkeypatch)
             x = x + 1e4
         return x, ok, msg, nit
 
-    monkeypatch.setattr(S, "_run_slsqp", run)
+    monkeypatch.setattr(S, "run_slsqp", run)
     s = solve(problem, schedule=[dict(params={}, level=0), dict(params={}, level=0)], max_iter=300)
     assert calls == [0, 1]
     assert not s.success and s.status is cs.Status.DIVERGED
@@ -153,7 +153,7 @@ def test_failed_stage_is_refined_through_midpoints(problem, monkeypatch):
     import importlib
 
     S = importlib.import_module("cstorm.optimize.solve")
-    real = S._run_slsqp
+    real = S.run_slsqp
     reached = []
 
     def run(ev, x, tracker, si, params, it, tol, options):
@@ -164,7 +164,7 @@ def test_failed_stage_is_refined_through_midpoints(problem, monkeypatch):
         reached.append(t)
         return out
 
-    monkeypatch.setattr(S, "_run_slsqp", run)
+    monkeypatch.setattr(S, "run_slsqp", run)
     monkeypatch.setitem(problem.solve_options, "refine", 2)
     s = solve(problem, continuation={"target": [np.pi / 4, np.pi]}, max_iter=300)
     assert s.success, s.message
@@ -264,7 +264,7 @@ def test_trust_constr_swing_up(problem):
         solve(problem, method="newton")
 
 
-def test_evaluate_records_the_constraint_grid_only(monkeypatch):
+def test_evaluate_records_the_constraint_grid_only():
     """`MotionProblem.evaluate` records the trajectory on the constraint grid only when no
     constraint reads every step (with ``derivatives="parallel"`` only those points'
     Jacobians are evaluated): values and Jacobians equal those of the full recording; a
@@ -284,16 +284,17 @@ def test_evaluate_records_the_constraint_grid_only(monkeypatch):
                              derivatives="parallel")
 
     p = make([constraints.TorqueLimits(limits=2.0, normalized=True), constraints.TerminalState("shoulder", v=0.0)])
-    assert p._record_rows() == tuple(int(i) for i in p.sample_idx)
-    assert make([constraints.TorqueLimits(limits=2.0, dense=True)])._record_rows() is None
+    assert p.recorded_rows() == tuple(int(i) for i in p.sample_idx)
+    assert make([constraints.TorqueLimits(limits=2.0, dense=True)]).recorded_rows() is None
     p.derivatives = "analytic"  # the other modes differentiate every step: they record all
-    assert p._record_rows() is None
+    assert p.recorded_rows() is None
     p.derivatives = "parallel"
     x = jnp.asarray(p.x0) + jnp.linspace(-0.4, 0.5, p.n_vars)
-    grid = p._fun_jac(x, p.data())
-    monkeypatch.setattr(MotionProblem, "_record_rows", lambda self: None)
-    full = p._fun_jac(x, p.data())
-    monkeypatch.undo()
+    grid = p.fun_jac(x, p.data())
+    p.record_grid_only = False
+    assert p.recorded_rows() is None
+    full = p.fun_jac(x, p.data())
+    p.record_grid_only = True
     for a, b in zip(grid, full):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)
     with pytest.raises(ProblemError, match="uses_steps"):

@@ -82,7 +82,7 @@ def run(quick=False):
     rows = []
     which = ["fun"] if quick else ["fun", "fun_jac"]
     for w in which:
-        fn = p._fun_jac if w == "fun_jac" else (
+        fn = p.fun_jac if w == "fun_jac" else (
             lambda x, dd: (lambda r: (r["f"], r["c_eq"], r["c_in"], r["diverged"]))(p.evaluate(x, dd)))
         t0 = time.perf_counter()
         c = jax.jit(fn).lower(x0, d).compile()

@@ -32,6 +32,24 @@ def _free_compiled_code():
     relieve_map_pressure(fraction=0.3, where="test-suite", warn=False)
 
 
+@pytest.fixture(scope="session")
+def acrobot_problem():
+    """The acrobot swing-up (`cstorm.examples.acrobot`) on a short grid (3 s, 16 control
+    points, dt 0.02), shared by the optimize test modules so that its functions compile
+    once per test process. Tests that change it restore it (``monkeypatch``)."""
+    from cstorm import examples
+
+    return examples.get("acrobot")(t_final=3.0, n_ctrl=16, dt=0.02)
+
+
+@pytest.fixture(scope="session")
+def acrobot_solution(acrobot_problem):
+    """`acrobot_problem` solved by SLSQP (at most 300 iterations)."""
+    from cstorm.optimize import solve
+
+    return solve(acrobot_problem, max_iter=300)
+
+
 #: seconds per test module on 2 workers (`pytest -n 2 --dist loadfile --durations=0`;
 #: setup + call + teardown, compile included). Only the order matters: the modules are
 #: handed to the workers longest first (scripts/test.sh passes ``--no-loadscope-reorder``,
@@ -39,10 +57,11 @@ def _free_compiled_code():
 #: workers finishing together. A module missing here counts as 30 s.
 MODULE_SECONDS = {
     "test_derivatives": 368, "test_hopping": 246, "test_geometry": 205, "test_tumbler": 179,
-    "test_rollout_tangents": 159, "test_dynamics": 144, "test_walker": 136, "test_optimize": 135,
+    "test_rollout_tangents": 159, "test_dynamics": 144, "test_walker": 136,
     "test_contact_jacobians": 97, "test_stepcheck": 94, "test_pinocchio": 66, "test_hopper": 55,
     "test_jumper": 52, "test_mujoco": 51, "test_docs": 49, "test_contact": 48, "test_cli": 44,
     "test_ddp": 150, "test_robustness": 120,
+    "test_problem": 70, "test_solve": 55, "test_sequence": 25, "test_solution": 15,
 }
 
 

@@ -16,8 +16,7 @@ import pytest
 
 import cstorm as cs
 from cstorm.contact import ContactParams, contact_forces
-from cstorm.contact import Environment, ground, incline, platform, sphere
-from cstorm import _pytree
+from cstorm.contact import Environment, Obstacle, ground, incline, platform, sphere
 
 
 def _model():
@@ -107,9 +106,10 @@ def _design_fn(theta, q, v, jacobians):
     params = PARAMS.replace(stiffness=k_pt * jnp.ones(n))
     poses = jnp.asarray(MODEL.geom_poses)
     g = MODEL.geom_names.index("toe")
-    model = _pytree.replace(MODEL, geom_poses=poses.at[g, 0, 3].add(x_geom))
+    model = MODEL.replace(geom_poses=poses.at[g, 0, 3].add(x_geom))
     ramp = PLANES.obstacles[1]
-    env = Environment([PLANES.obstacles[0], _pytree.replace(ramp, pose=jnp.asarray(ramp.pose).at[2, 3].add(z_ramp))])
+    moved = Obstacle(ramp.shape, pose=jnp.asarray(ramp.pose).at[2, 3].add(z_ramp), name=ramp.name, contact=ramp.contact)
+    env = Environment([PLANES.obstacles[0], moved])
     return _flat(contact_forces(model, env, params, q, v, jacobians=jacobians))
 
 

@@ -34,8 +34,8 @@ def test_box_qp_matches_scipy():
         lo, hi = -rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
         if trial % 5 == 0:
             lo[0], hi[0] = -np.inf, np.inf
-        du, K, free, ok = ddp._box_qp(jnp.asarray(H), jnp.asarray(g), jnp.zeros((n, 2)), jnp.asarray(lo),
-                                      jnp.asarray(hi))
+        du, K, free, ok = ddp.box_qp(jnp.asarray(H), jnp.asarray(g), jnp.zeros((n, 2)), jnp.asarray(lo),
+                                     jnp.asarray(hi))
         ref = minimize(lambda d: 0.5 * d @ H @ d + g @ d, np.zeros(n), jac=lambda d: H @ d + g,
                        bounds=list(zip(lo, hi)), method="L-BFGS-B", options=dict(ftol=1e-15, gtol=1e-12))
         assert bool(ok)

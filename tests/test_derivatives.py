@@ -62,7 +62,16 @@ def _inputs(model, topology, seed, kind="mixed", with_fext=True, neutral=False):
     return q, v, a[act], tau[~act], active, f_ext
 
 
-_y = jit(DAD._y, static_argnums=(5,))
+def _hybrid_output(model, q, v, a_active, tau_passive, active, f_ext):
+    """(nv,) hybrid output through the public `cs.hybrid_dynamics`: tau_active in the
+    active rows, a_passive in the passive rows (the layout of the derivatives' ``y``)."""
+    act = np.array(active, dtype=bool)
+    ta, ap = cs.hybrid_dynamics(model, q, v, a_active, tau_passive, active, f_ext)
+    y = jnp.zeros(model.nv, dtype=jnp.result_type(ta, ap, v))
+    return y.at[np.nonzero(act)[0]].set(ta).at[np.nonzero(~act)[0]].set(ap)
+
+
+_y = jit(_hybrid_output, static_argnums=(5,))
 _hyb_ad = jit(DAD.hybrid_dynamics_derivatives_ad, static_argnames=("active",))
 _hyb = jit(D.hybrid_dynamics_derivatives, static_argnames=("active",))
 _rnea = jit(D.rnea_derivatives)
@@ -198,7 +207,7 @@ def test_autodiff_rnea_and_aba_references():
 
 @pytest.mark.parametrize("n", (1, 2, 7, 22, 38))
 def test_spd_inverse_against_numpy(n):
-    """`_spd_inverse` (LAPACK Cholesky, recursive blocked triangular inverse) on random
+    """`spd_inverse` (LAPACK Cholesky, recursive blocked triangular inverse) on random
     SPD matrices with condition numbers 1e2 and 1e8, against numpy's LU inverse: the
     error stays at cond * eps."""
     rng = np.random.default_rng(n)
@@ -206,11 +215,11 @@ def test_spd_inverse_against_numpy(n):
         Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
         A = Q @ np.diag(np.logspace(0, np.log10(cond), n)) @ Q.T
         A = (A + A.T) / 2
-        got = np.asarray(jit(D._spd_inverse)(jnp.asarray(A)))
+        got = np.asarray(jit(D.spd_inverse)(jnp.asarray(A)))
         want = np.linalg.inv(A)
         assert np.abs(got - want).max() / np.abs(want).max() < 100 * cond * np.finfo(float).eps
         L = np.linalg.cholesky(A)
-        assert np.allclose(np.asarray(jit(D._tril_inverse)(jnp.asarray(L))) @ L, np.eye(n), atol=1e-10 * cond ** 0.5)
+        assert np.allclose(np.asarray(jit(D.tril_inverse)(jnp.asarray(L))) @ L, np.eye(n), atol=1e-10 * cond ** 0.5)
 
 
 def test_identities():

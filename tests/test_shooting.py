@@ -41,7 +41,7 @@ def test_layout_and_continuity_terms(single, multi):
     nvp = 1  # the shoulder
     assert multi.n_vars == single.n_vars + 2 * nvp * (K - 1)
     assert multi.n_eq == single.n_eq + 2 * nvp * (K - 1)
-    kind, sl, stage, label = multi._term_slices[-1]
+    kind, sl, stage, label = multi.term_slices[-1]
     assert (kind, stage, label) == ("eq", 0, "shooting continuity") and sl.stop == multi.n_eq
     assert multi.describe()["shooting"] == K and "shooting" not in single.describe()
     assert multi.hash() != single.hash()

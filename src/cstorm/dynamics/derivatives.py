@@ -304,28 +304,27 @@ def _mass_from_columns(model, tree, J, A):
     return jnp.asarray(tree.up, dtype=dtype) * U + (jnp.asarray(tree.sup, dtype=dtype) * U).T + jnp.diag(model.armature)
 
 
-def _spd_inverse(A):
-    """Inverse of a symmetric positive definite matrix (n, n): Cholesky ``A = L L^T``,
-    ``W = L^-1`` (`_tril_inverse`), ``A^-1 = W^T W``. (Under `vmap` on CPU, batch 4096:
-    n = 38 takes 18 us against 48-51 us with a batched triangular solve for W, n = 22
-    5.8 against 7.1 us, with the same accuracy, as both use the same L; unrolled
-    elementwise Cholesky factorizations were 4-8x slower for n >= 18.)"""
+def spd_inverse(A):
+    """Inverse (n, n) of a symmetric positive definite matrix ``A`` (n, n): Cholesky
+    ``A = L L^T``, ``W = L^-1`` (`tril_inverse`), ``A^-1 = W^T W``. Pure JAX; under
+    `vmap` on CPU the blocked triangular inverse is faster than a batched triangular
+    solve for W, at the same accuracy (both use the same L)."""
     n = A.shape[0]
     if n == 1:
         return 1.0 / A
-    W = _tril_inverse(jnp.linalg.cholesky(A))
+    W = tril_inverse(jnp.linalg.cholesky(A))
     return sp.mm(W.T, W)
 
 
-def _tril_inverse(L):
-    """Inverse of a lower-triangular matrix (n, n) with a positive diagonal, by recursive
-    2x2 blocking: ``[[A, 0], [B, C]]^-1 = [[A^-1, 0], [-C^-1 B A^-1, C^-1]]``, the
-    products as sums of outer products (`spatial.mm`)."""
+def tril_inverse(L):
+    """Inverse (n, n), lower-triangular, of a lower-triangular matrix ``L`` (n, n) with a
+    positive diagonal, by recursive 2x2 blocking: ``[[A, 0], [B, C]]^-1 = [[A^-1, 0],
+    [-C^-1 B A^-1, C^-1]]``, the products as sums of outer products (`spatial.mm`)."""
     n = L.shape[0]
     if n == 1:
         return 1.0 / L
     h = n // 2
-    Ai, Ci = _tril_inverse(L[:h, :h]), _tril_inverse(L[h:, h:])
+    Ai, Ci = tril_inverse(L[:h, :h]), tril_inverse(L[h:, h:])
     X = -sp.mm(Ci, sp.mm(L[h:, :h], Ai))
     top = jnp.concatenate([Ai, jnp.zeros((h, n - h), dtype=L.dtype)], axis=1)
     return jnp.concatenate([top, jnp.concatenate([X, Ci], axis=1)], axis=0)
@@ -406,7 +405,7 @@ def hybrid_derivatives_unchecked(model, q, v, a_active, tau_passive, active, f_e
         # passive accelerations from M_pp a_p = tau_p - rnea_p(q, v, [a_a; 0], f_ext)
         *_, tau0 = _dynamics(model, tree, kin, a, f_ext)
         M0 = _mass_only(model, tree, kin)
-        Minv = _spd_inverse(_take(_take(M0, ip, 0), ip, 1))
+        Minv = spd_inverse(_take(_take(M0, ip, 0), ip, 1))
         a_p = sp.mv(Minv, tau_passive - _take(tau0, ip))
         a = _rows(ia, ip, a_active, a_p)
     _, oap, F, tau = _dynamics(model, tree, kin, a, f_ext)

@@ -59,7 +59,7 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-__all__ = ["OCP", "DDPOptions", "DDPResult", "solve_ocp"]
+__all__ = ["OCP", "DDPOptions", "DDPResult", "solve_ocp", "box_qp"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -347,7 +347,7 @@ class _Compiled:
             Quu = luu + B_.T @ Vxr @ B_ + (reg_u * reg + 1e-12) * eye_u
             Qux = lux + B_.T @ Vxr @ A_
             Quu = 0.5 * (Quu + Quu.T)
-            du, K_, free, ok = _box_qp(Quu, Qu, Qux, lo - u, hi - u)
+            du, K_, free, ok = box_qp(Quu, Qu, Qux, lo - u, hi - u)
             Vx_n = Qx + K_.T @ Quu @ du + K_.T @ Qu + Qux.T @ du
             Vxx_n = Qxx + K_.T @ Quu @ K_ + K_.T @ Qux + Qux.T @ K_
             Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
@@ -447,11 +447,17 @@ class _Compiled:
         return dict(out, X=Xn, U=Un, Y=Y, gaps=(1.0 - alpha) * gaps, bad=bad)
 
 
-def _box_qp(H, g, Hux, lo, hi, n_iter=12):
+def box_qp(H, g, Hux, lo, hi, n_iter=12):
     """``min 1/2 du' H du + g' du`` s.t. ``lo <= du <= hi`` (projected Newton with a
-    backtracking search, a fixed number of iterations), and the feedback gain ``K = -H_ff^-1
-    H_ux`` on the free rows (zero on rows clamped at a bound). ``H`` (nu, nu) positive
-    definite; infinite bounds allowed. Returns ``(du, K, free, ok)``."""
+    backtracking search, ``n_iter`` iterations), and the feedback gain ``K = -H_ff^-1
+    H_ux`` on the free rows (zero on rows clamped at a bound).
+
+    Args:
+      H: (nu, nu) positive definite. g: (nu,). Hux: (nu, nx), the cross term of the
+        feedback gain. lo, hi: (nu,), infinite entries allowed.
+    Returns:
+      ``(du (nu,), K (nu, nx), free (nu,) bool: rows not clamped at a bound, ok: scalar
+      bool, False where the Cholesky factorization of H failed)``. Pure JAX (jit, vmap)."""
     nu = g.shape[0]
     eye = jnp.eye(nu, dtype=g.dtype)
     L = jnp.linalg.cholesky(H)

@@ -223,7 +223,8 @@ class MotionProblem:
         attribute after construction.
 
     Attributes: ``model, layout, spline, n_steps, dt, t (grid), n_vars, n_eq, n_ineq,
-    x0, solve_options`` (defaults merged into `solve`'s options, e.g. a continuation
+    term_slices`` (each constraint term's rows of ``c_eq`` / ``c_in``), ``x0,
+    solve_options`` (defaults merged into `solve`'s options, e.g. a continuation
     schedule shipped with an example).
     """
 
@@ -318,7 +319,7 @@ class MotionProblem:
             raise ProblemError(f"MotionProblem: derivatives must be one of {DERIVATIVES}, got {derivatives!r}")
         self.derivatives = derivatives
         #: `evaluate` records the trajectory on the constraint grid only where it can (see
-        #: `_record_rows`; with ``derivatives="parallel"`` the grid-point Jacobians of ~40
+        #: `recorded_rows`; with ``derivatives="parallel"`` the grid-point Jacobians of ~40
         #: points instead of every step, ~30 % less time per values+Jacobian on the
         #: tumbler). False: every step; values and Jacobians equal to
         #: rounding (the batched Jacobians' rounding depends on the batch)
@@ -343,9 +344,12 @@ class MotionProblem:
         self._basis = {k: jnp.asarray(v) for k, v in active_paths(self.spline, self.n_steps, integrator).items()}
         self.solve_options = {}
         self._compiled = {}
-        self._term_slices = self._slices()
-        self.n_eq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "eq")
-        self.n_ineq = sum(sl.stop - sl.start for kind, sl, _, _ in self._term_slices if kind == "ineq")
+        #: per constraint term, in order, then the shooting continuity defects (with
+        #: ``shooting > 1``): ``(kind, rows, stage, label)``, ``kind`` "eq" or "ineq", ``rows``
+        #: the term's slice of ``c_eq`` or ``c_in``, ``stage`` its constraint level
+        self.term_slices = self._slices()
+        self.n_eq = sum(sl.stop - sl.start for kind, sl, _, _ in self.term_slices if kind == "eq")
+        self.n_ineq = sum(sl.stop - sl.start for kind, sl, _, _ in self.term_slices if kind == "ineq")
         self.x0 = self.initial_x(initial_guess)
 
     # ------------------------------------------------------------------ free initial state
@@ -570,7 +574,7 @@ class MotionProblem:
     def evaluate(self, x, data):
         """Pure JAX: dict ``f`` (scalar objective), ``c_eq`` (n_eq,), ``c_in`` (n_ineq,),
         ``diverged`` (bool) at decision vector ``x`` (n_vars,)."""
-        rows = self._record_rows()
+        rows = self.recorded_rows()
         res, ctx = self._rollout(x, data, record=True, rows=rows)
         tr = res["traj"]
         end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
@@ -621,10 +625,11 @@ class MotionProblem:
         end = dict(q=tr["q"][-1], v=tr["v"][-1], a=tr["a"][-1], tau=tr["tau"][-1])
         return [jnp.atleast_1d(c.values(ctx, end, self._samples(tr))).ravel() for c in self.constraints]
 
-    def _record_rows(self):
-        """The grid points whose recorded data `evaluate` reads: the constraint grid
-        (`sample_idx`, both ends included), or None (every step) when a constraint reads
-        ``samples["steps"]`` (its ``uses_steps``), with multiple shooting, or unless
+    def recorded_rows(self):
+        """The grid points whose recorded data `evaluate` reads, as a tuple of step
+        indices into the grid ``t``: the constraint grid (`sample_idx`, both ends
+        included); or None (every step) when a constraint reads ``samples["steps"]`` (its
+        ``uses_steps``), with multiple shooting, with ``record_grid_only`` False, or unless
         ``derivatives="parallel"`` (only then are just these points' Jacobians evaluated;
         the other modes differentiate every step anyway and keep their verified paths)."""
         if (self.shooting > 1 or not self.record_grid_only or self.derivatives != "parallel"
@@ -638,7 +643,7 @@ class MotionProblem:
         the same fields (no contact) on every integration step, ``(N+1, ...)``, for terms
         that aggregate over all steps (``TorqueLimits(dense=True)``; a term that reads
         them declares ``uses_steps = True``). ``recorded``: ``tr`` holds the constraint
-        grid's points only (`_record_rows`), and ``steps`` is not available."""
+        grid's points only (`recorded_rows`), and ``steps`` is not available."""
         idx = self.sample_idx
         at = (lambda y: y) if recorded else (lambda y: y[idx])
         steps = _NoSteps() if recorded else dict(t=jnp.asarray(self.t), q=tr["q"], v=tr["v"], a=tr["a"], tau=tr["tau"])
@@ -652,7 +657,7 @@ class MotionProblem:
         """Boolean masks over ``c_eq`` and ``c_in``: the constraints enforced at stage
         ``level`` (terms with ``stage <= level``; None: all)."""
         me, mi = np.zeros(self.n_eq, bool), np.zeros(self.n_ineq, bool)
-        for kind, sl, stage, _ in self._term_slices:
+        for kind, sl, stage, _ in self.term_slices:
             if level is None or stage <= level:
                 (me if kind == "eq" else mi)[sl] = True
         return me, mi
@@ -670,7 +675,7 @@ class MotionProblem:
         each output with a leading axis B; ``"trajectory"`` -> `trajectory`."""
         if which not in self._compiled:
             if which == "fun_jac":
-                self._compiled[which] = jax.jit(self._fun_jac)
+                self._compiled[which] = jax.jit(self.fun_jac)
             elif which == "fun":
                 self._compiled[which] = jax.jit(
                     lambda x, d: (lambda r: (r["f"], r["c_eq"], r["c_in"], r["diverged"]))(self.evaluate(x, d)))
@@ -709,7 +714,13 @@ class MotionProblem:
         n_active) from `ctrl`."""
         return self._basis
 
-    def _fun_jac(self, x, data):
+    def fun_jac(self, x, data):
+        """Pure JAX: values and first derivatives at the decision vector ``x`` (n_vars,):
+        ``(f, c_eq (n_eq,), c_in (n_ineq,), diverged, grad f (n_vars,), J_eq (n_eq,
+        n_vars), J_in (n_ineq, n_vars))``, the values those of `evaluate`. Forward or
+        reverse mode by the problem's ``jacobian`` setting (``"auto"``: forward when
+        n_vars <= max(64, 4 (1 + n_eq + n_ineq))). ``compiled("fun_jac")`` is its jitted
+        form."""
         def y(xx):
             r = self.evaluate(xx, data)
             return jnp.concatenate([r["f"][None], r["c_eq"], r["c_in"]]), r["diverged"]

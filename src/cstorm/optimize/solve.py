@@ -46,7 +46,7 @@ from .bounds import clip_into, stage_bounds, variable_bounds
 from .sequence import MotionSequence
 from .solution import Solution, Status, atomic_savez, contact_dict
 
-__all__ = ["solve", "check_solve_arguments"]
+__all__ = ["solve", "check_solve_arguments", "resolve_objective_scale", "run_slsqp"]
 
 _BIG = 1e12
 
@@ -399,7 +399,7 @@ def _solve_problem(problem, *, method="slsqp", x0=None, continuation=None, sched
             s_tol = float(st["extra"].get("tol", s_tol))  # a stage's own tolerance / iteration limit
             s_it = int(st["extra"].get("max_iter", s_it))
             if method == "slsqp":
-                x, solver_ok, message, nit = _run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
+                x, solver_ok, message, nit = run_slsqp(ev, x, tracker, si, params_now, s_it, s_tol, options)
             elif method == "trust-constr":
                 x, solver_ok, message, nit = _run_trust_constr(ev, x, tracker, si, params_now, s_it, s_tol, options)
             else:
@@ -561,7 +561,21 @@ def _jsonable(d):
 # ---------------------------------------------------------------------------------------
 # SLSQP
 # ---------------------------------------------------------------------------------------
-def _run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
+def run_slsqp(ev, x, tracker, stage, params, max_iter, tol, options):
+    """One stage of `solve` with scipy's SLSQP, from ``x`` (n_vars,).
+
+    Args:
+      ev: the stage's evaluator: ``ev.at(x)`` -> ``(f, c_eq, c_in, diverged, grad f, J_eq,
+        J_in)`` restricted to the stage's enforced rows (``ev.me``, ``ev.mi``: boolean
+        masks over ``c_eq``, ``c_in``); the solver minimizes ``ev.fscale * f`` within
+        ``ev.bounds`` (``(lb, ub)``, each (n_vars,); None: `variable_bounds` of ``ev.p``).
+      tracker: records each iterate (``tracker.record(x, ev, stage, params)``).
+      stage: the stage's index in the plan. params: its problem parameters.
+      max_iter, tol: SLSQP's ``maxiter`` and ``ftol``. options: further SLSQP options
+        (override those two).
+    Returns:
+      ``(x (n_vars,), solver_ok, message, iterations)``, ``solver_ok`` SLSQP's own
+      verdict (`solve` also checks the constraint violation at ``x``)."""
     from scipy.optimize import Bounds, minimize
 
     cons = []

@@ -43,6 +43,8 @@ Transcription
 from __future__ import annotations
 
 import dataclasses
+import sys
+import time
 
 import numpy as np
 import jax
@@ -50,14 +52,18 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from ..dynamics.configuration import difference as q_difference, integrate as q_integrate
+from ..dynamics.crba import mass_matrix
 from ..dynamics.derivatives_fast import hybrid_fast
 from ..dynamics.hybrid import hybrid_unchecked
 from ..dynamics.passive import passive_forces
-from ..errors import ProblemError
+from ..errors import DivergenceError, ProblemError
+from ..version import __version__ as _ver
 from ..simulate import RolloutLayout, contact_hybrid, dexpinv, passive_exp
 from . import costs as _costs
-from .ddp import OCP
+from .constraints import JointLimits
+from .ddp import OCP, DDPOptions, compile_ocp, initial_multipliers, solve_ocp
 from .problem import EvalContext
+from .solution import Solution, Status, contact_dict
 
 __all__ = ["Transcription", "transcribe"]
 
@@ -431,7 +437,6 @@ class _ActiveLimits:
 
 def _boundary_terms(p):
     out = []
-    from .constraints import JointLimits
     lim = _ActiveLimits(p)
     if (len(lim.lo_i) or len(lim.hi_i)) and not any(isinstance(c, JointLimits) for c in p.constraints) \
             and getattr(p, "x_bounds", None) is None:
@@ -477,7 +482,6 @@ def tracking_gains(tr: Transcription, data=None, bandwidth=None):
     loads, and well inside what the step resolves): ``K_p = M_jj w^2``, ``K_d = 2 M_jj
     w`` with ``M_jj`` the joint's diagonal inertia (armature included) at the start
     configuration. The solver's first rollout uses them to follow the guess."""
-    from ..dynamics.crba import mass_matrix
 
     p = tr.problem
     data = tr.data if data is None else data
@@ -541,7 +545,6 @@ def resimulate(problem, U, q0, v0, factor=4, integrator=None):
     held over its step) from ``(q0, v0)`` with ``integrator`` (default the problem's) at
     ``dt / factor``. Returns ``(Q (N+1, nq), V (N+1, nv))`` on the problem's grid;
     raises `DivergenceError` if the states leave the bounds."""
-    from ..errors import DivergenceError
 
     tr, _ = compiled_transcription(problem)
     integ = integrator or problem.integrator
@@ -593,7 +596,6 @@ class _SubProblem:
 def compiled_transcription(problem):
     """The problem's transcription and compiled DDP functions, built once per problem
     (``problem.compiled`` caches them under ``"ddp"``)."""
-    from .ddp import compile_ocp
 
     def build():
         tr = transcribe(problem)
@@ -609,15 +611,6 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     another start state (a sequence's later segments). Returns a `Solution` whose
     ``x`` is the controls ``U.ravel()`` ((N+1) n_active motor torques, N m) and whose
     trajectory carries them as ``u`` (N+1, n_active)."""
-    import sys
-    import time
-
-    import jax.numpy as jnp
-
-    from ..version import __version__ as _ver
-    from .ddp import DDPOptions, initial_multipliers, solve_ocp
-    from .solution import Solution, Status
-
     t0 = time.perf_counter()
     tr, C = compiled_transcription(problem)
     data = dict(tr.data)
@@ -653,7 +646,6 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     traj = tr.trajectory(res.Y)
     traj["u"] = np.asarray(res.U)
     if traj.get("contact") is not None:
-        from .solution import contact_dict
         traj["contact"] = contact_dict(traj["contact"])
     success = res.converged and res.violation <= constraint_tol
     message = {"converged": "converged", "max_iter": f"iteration limit ({max_iter}) reached",

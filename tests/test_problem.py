@@ -2,8 +2,8 @@
 float64 guard, exact gradients against central differences (`check_gradients`), and the
 trajectory recorded on the constraint grid only.
 
-The acrobot problem is the session fixture ``acrobot_problem`` (tests/conftest.py), so its
-functions compile once per test process.
+The acrobot problem is the fixture ``acrobot_problem`` (tests/conftest.py), built once per
+test process, so its functions compile once.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """`Solution` (`cstorm.optimize.solution`): save and load round trip of a solved acrobot
-swing-up (the session fixture ``acrobot_solution``, tests/conftest.py).
+swing-up (the fixture ``acrobot_solution``, tests/conftest.py, built once per test process).
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@ upright (SLSQP, IPOPT, trust-constr), Ctrl-C returning the best iterate, per-sta
 schedules, a diverged final iterate, failed stages refined through midpoints, checkpoint
 and resume; and the auto objective scale, which needs no compiled problem.
 
-The acrobot problem and its SLSQP solution are the session fixtures ``acrobot_problem``
-and ``acrobot_solution`` (tests/conftest.py), so its functions compile once per test
-process.
+The acrobot problem and its SLSQP solution are the fixtures ``acrobot_problem`` and
+``acrobot_solution`` (tests/conftest.py), built once per test process, so its functions
+compile once.
 """
 
 from __future__ import annotations

@@ -51,9 +51,8 @@ Compiled once per problem shape: the iterate, multipliers, penalties, ``alpha`` 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import jax
@@ -115,8 +114,11 @@ class DDPOptions:
     (as SLSQP's ``ftol``), at a feasible iterate.
     constraint_tol: largest constraint violation accepted (units of the rows). gap_tol:
     largest dynamics gap (tangent norm) of a feasible iterate. mu0: initial penalty.
-    mu_max: largest penalty. reg0, reg_min, reg_max: regularization. alpha_min: the
-    shortest line-search step. verbose: print one line per iteration.
+    mu_max: largest penalty. reg0, reg_min, reg_max: regularization; a full step
+    multiplies it by ``reg_down``, an accepted step shorter than ``reg_up_below`` by 10.
+    alpha_min: the shortest line-search step. project_end: try the step that meets the
+    final node's rows' linearization (`_Compiled._project`) before the penalty-only step.
+    verbose: print one line per iteration.
     """
 
     max_iter: int = 500
@@ -130,11 +132,8 @@ class DDPOptions:
     reg_max: float = 1e9
     alpha_min: float = 2.0 ** -12
     reg_down: float = 1.0 / 3.0
-    reg_u: float = 1.0
-    project_end: bool = True
-    inner_cap: float = 1e-3
-    inner_ratio: float = 1e-2
     reg_up_below: float = 0.5
+    project_end: bool = True
     armijo: float = 0.1
     inner_max_iter: int = 60
     stall_window: int = 5
@@ -212,6 +211,7 @@ class _Compiled:
         self.backward = jax.jit(self._backward)
         self.forward = jax.jit(self._forward)
         self.project = jax.jit(self._project)
+        self.node_terms = jax.jit(self._node_terms)
 
     # -- evaluation of a trajectory --------------------------------------------------
     def _node_terms(self, Y, data, al):
@@ -316,17 +316,15 @@ class _Compiled:
                     luu=H[:, nx:, nx:], lux=H[:, nx:, :nx], cN=cN, CN=CN)
 
     # -- backward pass -------------------------------------------------------------------
-    def _backward(self, lin, U, lb, ub, reg, reg_u=1.0):
+    def _backward(self, lin, U, lb, ub, reg):
         """Riccati recursion with gaps and control boxes. Returns ``k (N+1, nu), K (N+1,
-        nu, nx)``, the model terms ``d1 = sum Q_u k``, ``d2 = sum k' Q_uu k`` and ``ok``
-        (every factorization succeeded)."""
+        nu, nx)``, the end rows' gain columns ``ke (N+1, nu, m)`` (see `_project`), the
+        model terms ``d1 = sum Q_u k``, ``d2 = sum k' Q_uu k`` and ``ok`` (every
+        factorization succeeded)."""
         o = self.ocp
         nx, nu = o.nx, o.nu
         eye_x, eye_u = jnp.eye(nx), jnp.eye(nu)
-        A = jnp.concatenate([lin["A"], jnp.zeros((1, nx, nx))])
-        B = jnp.concatenate([lin["B"], jnp.zeros((1, nx, nu))])
-        # f_{k+1} as seen from node k: the gap of node k+1 (node N has none after it)
-        fn = jnp.concatenate([lin["gaps"][1:], jnp.zeros((1, nx))])
+        A, B, fn = _padded(lin)
         # the end rows' Jacobians enter as extra gradient columns at node N only (their
         # value functions are linear: the same Riccati recursion, no Hessian of their own)
         m = lin["CN"].shape[0]
@@ -344,7 +342,7 @@ class _Compiled:
             Qx = lx + A_.T @ Vx1
             Qu = lu + B_.T @ Vx1
             Qxx = lxx + A_.T @ Vxr @ A_
-            Quu = luu + B_.T @ Vxr @ B_ + (reg_u * reg + 1e-12) * eye_u
+            Quu = luu + B_.T @ Vxr @ B_ + reg * eye_u
             Qux = lux + B_.T @ Vxr @ A_
             Quu = 0.5 * (Quu + Quu.T)
             du, K_, free, ok = box_qp(Quu, Qu, Qux, lo - u, hi - u)
@@ -377,12 +375,9 @@ class _Compiled:
         rows (``S = -C_N d(dz_N)/d(nu)``, ``r = c_N + C_N dz_N(0)``; 0 elsewhere). Returns
         the gains ``k`` (N+1, nu), the model's ``d1 = g' dz``, ``d2 = dz' H dz`` of the
         whole step, the multipliers and the linearized residual of the end rows."""
-        o = self.ocp
-        nx, N = o.nx, o.n_steps
+        nx = self.ocp.nx
         m = lin["CN"].shape[0]
-        A = jnp.concatenate([lin["A"], jnp.zeros((1, nx, nx))])
-        B = jnp.concatenate([lin["B"], jnp.zeros((1, nx, o.nu))])
-        fn = jnp.concatenate([lin["gaps"][1:], jnp.zeros((1, nx))])
+        A, B, fn = _padded(lin)
         KA = jnp.concatenate([bw["k"][:, :, None], bw["ke"]], axis=2)  # (N+1, nu, 1+m)
 
         def body(dX, z):
@@ -445,6 +440,16 @@ class _Compiled:
         bad = bad | ~jnp.all(jnp.isfinite(Y)) | ~jnp.isfinite(out["merit"])
         # the gaps left: (1 - alpha) of the old ones (exactly, up to the transport)
         return dict(out, X=Xn, U=Un, Y=Y, gaps=(1.0 - alpha) * gaps, bad=bad)
+
+
+def _padded(lin):
+    """The dynamics Jacobians ``A (N+1, nx, nx)``, ``B (N+1, nx, nu)`` and the gaps
+    ``f_{k+1}`` as seen from node ``k`` (N+1, nx), each with a zero entry for node ``N``
+    (no dynamics after it): the per-node inputs of the backward pass and of `_project`'s
+    linear rollout."""
+    A, B, gaps = lin["A"], lin["B"], lin["gaps"]
+    pad = lambda a: jnp.concatenate([a, jnp.zeros((1,) + a.shape[1:], a.dtype)])
+    return pad(A), pad(B), pad(gaps[1:])
 
 
 def box_qp(H, g, Hux, lo, hi, n_iter=12):
@@ -514,7 +519,6 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     violated row in the verbose lines (default: kind, node and row numbers)."""
     opt = options or DDPOptions()
     C = compiled or _Compiled(ocp)
-    N = ocp.n_steps
     X = jnp.asarray(X0, jnp.float64)
     U = jnp.asarray(U0, jnp.float64)
     lb, ub = jnp.asarray(lb, jnp.float64), jnp.asarray(ub, jnp.float64)
@@ -533,7 +537,6 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     history = []
     status, it, converged = "max_iter", 0, False
     best = None
-    viol_prev = _max(_rows(ev))
     row_prev = _row_state(ev)
     inner = outer = 0
     if opt.verbose:
@@ -544,7 +547,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
         while it < opt.max_iter:
             if lin is None:  # (kept when the iterate and the multipliers did not change)
                 lin = C.linearize(X, U, data, al)
-            bw = C.backward(lin, U, lb, ub, reg, opt.reg_u)
+            bw = C.backward(lin, U, lb, ub, reg)
             if not bool(bw["ok"]):
                 reg *= 10.0
                 if reg > opt.reg_max:
@@ -555,7 +558,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             merit = float(ev["merit"])
             stat = -d1 / (1.0 + abs(merit))
             viol = _max(_rows(ev))
-            inner_tol = max(opt.tol, min(opt.inner_cap, viol * opt.inner_ratio)) if viol > opt.constraint_tol else opt.tol
+            inner_tol = max(opt.tol, min(1e-3, viol * 1e-2)) if viol > opt.constraint_tol else opt.tol
             # no progress: the merit changed by less than tol (relative) over the last
             # `stall_window` iterations (as SLSQP's ftol)
             taken = [h["merit"] for h in history[-3 * opt.stall_window:] if h["step"] > 0 and h["outer"] == outer]
@@ -570,7 +573,6 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 outer += 1
                 lin = None
                 row_prev = _row_state(ev)
-                viol_prev = viol
                 inner = 0
                 ev = C.evaluate(X, U, data, al)
                 continue
@@ -621,7 +623,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     # step's (the penalties' gradient at c = 0 plus nu), so that the
                     # penalty-only steps that follow do not pull the rows back
                     al = _shift_end_multipliers(al, pj["nu"], ocp.n_eq, ev)
-                    accepted = dict(accepted, **{k: v for k, v in C.evaluate(X, U, data, al).items() if k != "gaps"})
+                    accepted = dict(accepted, **C.node_terms(accepted["Y"], data, al))
                 gap_new = float(jnp.max(jnp.linalg.norm(accepted["gaps"], axis=1)))
                 ev = dict(accepted)
                 feasible = feasible or gap_new <= opt.gap_tol or alpha == 1.0

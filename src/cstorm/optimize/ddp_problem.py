@@ -233,7 +233,6 @@ def transcribe(problem) -> Transcription:
 
     # --- constraint terms
     ctx0 = EvalContext(p, model0, data["params"])
-    t_grid = np.asarray(p.t)
     eq_terms, in_terms = [], []  # (term, where, n_rows, node mask (N+1,))
     geq_terms, gin_terms = [], []  # whole-trajectory terms: (term, n_rows)
     lb = np.full((N + 1, nu), -np.inf)
@@ -453,7 +452,7 @@ def initial_guess(tr: Transcription, data=None):
     docstring). ``X0[0]`` is the problem's start state."""
     p = tr.problem
     model = p.model
-    nq, nv = model.nq, model.nv
+    nv = model.nv
     N = p.n_steps
     data = tr.data if data is None else data
     full = p.data()
@@ -554,7 +553,6 @@ def resimulate(problem, U, q0, v0, factor=4, integrator=None):
         layout_all = RolloutLayout.make(problem.model, ())
         sub = _SubProblem(problem, factor, integ)
         step, _ = _stepper(sub, tr.dyn, layout_all, lambda q, v, a, tau, cd: jnp.zeros(0))
-        nq = problem.model.nq
 
         def run(x0, U, data):
             def one(x, u):
@@ -627,17 +625,20 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     log = lambda s: print(s, file=stream, flush=True)
     # compile (timed separately): one call of each compiled function
     tc = time.perf_counter()
-    N, nu = problem.n_steps, tr.ocp.nu
     al = initial_multipliers(tr.ocp, opt.mu0)
     Xj, Uj = jnp.asarray(X0), jnp.clip(jnp.asarray(U0), tr.lb, tr.ub)
     lin = C.linearize(Xj, Uj, data, al)
     bw = C.backward(lin, Uj, jnp.asarray(tr.lb), jnp.asarray(tr.ub), 1e-9)
     jax.block_until_ready(C.forward(Xj, Uj, bw["k"], bw["K"], lin["gaps"], 0.0, jnp.asarray(tr.lb),
                                     jnp.asarray(tr.ub), data, al))
-    jax.block_until_ready(C.evaluate(Xj, Uj, data, al))
+    ev0 = C.evaluate(Xj, Uj, data, al)
+    jax.block_until_ready(C.node_terms(ev0["Y"], data, al))
+    if opt.project_end:
+        jax.block_until_ready(C.project(lin, bw, jnp.asarray(tr.ocp.mask_eq[-1], bool),
+                                        jnp.asarray(tr.ocp.mask_in[-1], bool)))
     compile_s = time.perf_counter() - tc
     if guess is None:
-        # the first iterate: the guess followed by a time-varying LQR (`_follow_guess`)
+        # the first iterate: the guess followed by the joint-space PD law (`_follow_guess`)
         r0 = _follow_guess(C, tr, lin, Xj, Uj, data, al)
         if r0 is not None:
             X0, U0 = r0

@@ -1,6 +1,11 @@
-"""Test helpers: seeded random kinematic trees and manifold finite differences."""
+"""Test helpers: seeded random kinematic trees, manifold finite differences, and the
+`cstorm` command run in-process."""
 
 from __future__ import annotations
+
+import contextlib
+import io
+import json
 
 import numpy as np
 import jax.numpy as jnp
@@ -68,3 +73,22 @@ def manifold_fd(f, model, q, eps=1e-6):
         e = jnp.zeros(model.nv).at[k].set(eps)
         cols.append((np.asarray(f(cs.integrate(model, q, e))) - np.asarray(f(cs.integrate(model, q, -e)))) / (2 * eps))
     return np.stack(cols, axis=-1)
+
+
+def run_cli(argv):
+    """Run the ``cstorm`` command in this process: ``(exit code, stdout, stderr)``."""
+    from cstorm.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue(), err.getvalue()
+
+
+def one_json(stdout):
+    """The one JSON object a ``--json`` run prints on stdout (asserts there is exactly one)."""
+    lines = [ln for ln in stdout.splitlines() if ln.strip()]
+    assert len(lines) == 1, stdout
+    obj = json.loads(lines[0])
+    assert isinstance(obj, dict)
+    return obj

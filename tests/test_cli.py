@@ -6,6 +6,7 @@ import os
 import pytest
 
 from cstorm.cli import main
+from helpers import one_json, run_cli
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml")
 
@@ -57,16 +58,16 @@ def test_info_strict_and_warnings(tmp_path):
     one JSON object naming file and body, no traceback. A cycle: exit 2 naming the joints."""
     p = tmp_path / "r.urdf"
     p.write_text(_urdf(izz=0.01))
-    rc, stdout, stderr = _run(["info", str(p), "--json"])
-    assert rc == 0 and _one_json(stdout)["nv"] == 1
+    rc, stdout, stderr = run_cli(["info", str(p), "--json"])
+    assert rc == 0 and one_json(stdout)["nv"] == 1
     assert "cstorm info: warning:" in stderr and "body 'l1': implausible inertia" in stderr
-    rc, stdout, stderr = _run(["info", str(p), "--strict", "--json"])
-    r = _one_json(stdout)
+    rc, stdout, stderr = run_cli(["info", str(p), "--strict", "--json"])
+    r = one_json(stdout)
     assert rc == 2 and r["error"] == "ModelError" and f"{p}: body 'l1': implausible inertia" in r["message"]
     assert "Traceback" not in stderr
     p.write_text(_urdf().replace('<child link="l1"/>', '<child link="base"/>'))
-    rc, stdout, stderr = _run(["info", str(p), "--json"])
-    assert rc == 2 and "'base'" in _one_json(stdout)["message"]
+    rc, stdout, stderr = run_cli(["info", str(p), "--json"])
+    assert rc == 2 and "'base'" in one_json(stdout)["message"]
     assert "Traceback" not in stderr
 
 
@@ -81,21 +82,19 @@ def test_info_package_dirs(tmp_path):
     p = tmp_path / "robot" / "r.urdf"
     p.parent.mkdir()
     p.write_text(_urdf(l1_extra=col, izz=0.0015))
-    rc, stdout, stderr = _run(["info", str(p), "--json"])
-    assert rc == 0 and _one_json(stdout)["geoms"] == [] and "package://pa/meshes/m.stl (link 'l1': not found)" in stderr
-    rc, stdout, stderr = _run(["info", str(p), "--json", "--package-dir", str(tmp_path / "roots" / "pa"),
+    rc, stdout, stderr = run_cli(["info", str(p), "--json"])
+    assert rc == 0 and one_json(stdout)["geoms"] == [] and "package://pa/meshes/m.stl (link 'l1': not found)" in stderr
+    rc, stdout, stderr = run_cli(["info", str(p), "--json", "--package-dir", str(tmp_path / "roots" / "pa"),
                                "--package-dir", str(tmp_path / "roots")])
-    assert rc == 0 and len(_one_json(stdout)["geoms"]) == 2 and "warning" not in stderr
-    rc, stdout, _ = _run(["info", str(p), "--json", "--package-dir", str(tmp_path / "nowhere")])
-    assert rc == 2 and "--package-dir" in _one_json(stdout)["message"]
+    assert rc == 0 and len(one_json(stdout)["geoms"]) == 2 and "warning" not in stderr
+    rc, stdout, _ = run_cli(["info", str(p), "--json", "--package-dir", str(tmp_path / "nowhere")])
+    assert rc == 2 and "--package-dir" in one_json(stdout)["message"]
 
 
 # ---------------------------------------------------------------------------------------
 # cstorm solve / animate on the shipped TOML example (one solve, shared by the tests;
 # later calls of `main` for the same problem reuse its compiled functions)
 # ---------------------------------------------------------------------------------------
-import contextlib
-import io
 
 import numpy as np
 
@@ -108,31 +107,16 @@ HALF = ["--set", "motion.params.target=2.356194490192345",
         "--set", "solver.continuation.target=[1.5707963267948966, 2.356194490192345]"]
 
 
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
-
-
-def _one_json(stdout):
-    lines = [ln for ln in stdout.splitlines() if ln.strip()]
-    assert len(lines) == 1, stdout
-    obj = json.loads(lines[0])
-    assert isinstance(obj, dict)
-    return obj
-
-
 @pytest.fixture(scope="module")
 def solved(tmp_path_factory):
     out = tmp_path_factory.mktemp("acrobot_toml")
-    rc, stdout, stderr = _run(["solve", EXAMPLE, "--out", str(out), "--json", *HALF])
+    rc, stdout, stderr = run_cli(["solve", EXAMPLE, "--out", str(out), "--json", *HALF])
     return rc, stdout, out
 
 
 def test_solve_toml_json_exit_0(solved):
     rc, stdout, out = solved
-    s = _one_json(stdout)
+    s = one_json(stdout)
     assert rc == 0 and s["success"] is True and s["solver_success"] is True, s["message"]
     assert s["problem"] == "acrobot_swing_up" and s["out"] == os.path.abspath(out)
     assert set(s["criteria"]) == {"final_q[shoulder]", "final_v[shoulder]", "constraint_violation"}
@@ -174,27 +158,27 @@ def test_summary_and_files(solved):
 
 def test_animate_rerenders_from_dir_and_npz(solved, tmp_path):
     rc, stdout, out = solved
-    rc, stdout, _ = _run(["animate", str(out), "--out", str(tmp_path / "a"), "--json"])
-    r = _one_json(stdout)
+    rc, stdout, _ = run_cli(["animate", str(out), "--out", str(tmp_path / "a"), "--json"])
+    r = one_json(stdout)
     assert rc == 0 and r["files"] == ["animation.gif", "joints.png", "paths.png", "torques.png"]
     for f in r["files"]:
         assert os.path.getsize(tmp_path / "a" / f) > 5000
-    rc, stdout, _ = _run(["animate", str(out / "solution.npz"), "--out", str(tmp_path / "b"), "--no-animation",
+    rc, stdout, _ = run_cli(["animate", str(out / "solution.npz"), "--out", str(tmp_path / "b"), "--no-animation",
                           "--csv", "--json"])
-    assert rc == 0 and _one_json(stdout)["files"] == ["joints.png", "paths.png", "torques.png", "trajectory.csv"]
+    assert rc == 0 and one_json(stdout)["files"] == ["joints.png", "paths.png", "torques.png", "trajectory.csv"]
     assert (tmp_path / "b" / "trajectory.csv").read_text() == (out / "trajectory.csv").read_text()
     # a solution that does not record its source cannot be re-rendered: exit 2, clear message
     sol = cs.load_solution(out / "solution.npz")
     sol.info = {}
     sol.save(tmp_path / "bare.npz")
-    rc, stdout, _ = _run(["animate", str(tmp_path / "bare.npz"), "--json"])
-    assert rc == 2 and "rebuild" in _one_json(stdout)["message"]
+    rc, stdout, _ = run_cli(["animate", str(tmp_path / "bare.npz"), "--json"])
+    assert rc == 2 and "rebuild" in one_json(stdout)["message"]
 
 
 def test_failed_solve_exits_1(solved, tmp_path):
-    rc, stdout, _ = _run(["solve", EXAMPLE, *HALF, "--max-iter", "1", "--no-fidelity", "--no-animation",
+    rc, stdout, _ = run_cli(["solve", EXAMPLE, *HALF, "--max-iter", "1", "--no-fidelity", "--no-animation",
                           "--out", str(tmp_path), "--json"])
-    s = _one_json(stdout)
+    s = one_json(stdout)
     assert rc == 1 and s["success"] is False and s["iterations"] == 2  # one per continuation stage
     assert s["fidelity"] is None and not s["criteria"]["final_q[shoulder]"]["ok"]
     assert (tmp_path / "summary.json").exists() and not (tmp_path / "animation.gif").exists()
@@ -208,8 +192,8 @@ def test_failed_solve_exits_1(solved, tmp_path):
     (["animate", "nowhere"], ["no solution"]),
 ])
 def test_bad_input_exits_2_with_one_json_object(argv, words):
-    rc, stdout, stderr = _run(argv + ["--json"])
-    r = _one_json(stdout)
+    rc, stdout, stderr = run_cli(argv + ["--json"])
+    r = one_json(stdout)
     assert rc == 2 and r["success"] is False
     for w in words:
         assert w in r["message"], r["message"]
@@ -221,8 +205,8 @@ def test_bad_problem_file_names_file_table_and_key(tmp_path):
         'file = "acrobot.urdf"', f'file = "{os.path.abspath(os.path.join(os.path.dirname(EXAMPLE), "acrobot.urdf"))}"')
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
-    rc, stdout, _ = _run(["solve", str(bad), "--json"])
-    assert rc == 2 and _one_json(stdout)["message"] == f"{bad}: [motion] t_final: must be > 0, got -3.0"
+    rc, stdout, _ = run_cli(["solve", str(bad), "--json"])
+    assert rc == 2 and one_json(stdout)["message"] == f"{bad}: [motion] t_final: must be > 0, got -3.0"
 
 
 def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
@@ -232,8 +216,8 @@ def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
 
     p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
     monkeypatch.setitem(examples.registry(), "twoseg", lambda: cs.MotionSequence([p, p], name="twoseg"))
-    rc, stdout, _ = _run(["solve", "twoseg", "--max-iter", "1", "--out", str(tmp_path / "seq"), "--json"])
-    s = _one_json(stdout)
+    rc, stdout, _ = run_cli(["solve", "twoseg", "--max-iter", "1", "--out", str(tmp_path / "seq"), "--json"])
+    s = one_json(stdout)
     assert rc == 1 and s["problem"] == "twoseg" and len(s["segments"]) == 2
     assert [g["iterations"] for g in s["segments"]] == [2, 2] and s["iterations"] == 4
     assert len(s["fidelity"]["segments"]) == 2 and all(len(g["checks"]) == 2 for g in s["fidelity"]["segments"])
@@ -241,17 +225,17 @@ def test_sequence_outputs_and_segment(solved, tmp_path, monkeypatch):
     data = np.loadtxt(tmp_path / "seq" / "trajectory.csv", delimiter=",", skiprows=1)
     assert data.shape[0] == 2 * p.n_steps + 1 and data[-1, 0] == pytest.approx(6.0)
     assert list(np.unique(data[:, 1])) == [0.0, 1.0]
-    rc, stdout, _ = _run(["animate", str(tmp_path / "seq"), "--no-animation", "--json"])
+    rc, stdout, _ = run_cli(["animate", str(tmp_path / "seq"), "--no-animation", "--json"])
     assert rc == 0
     # one segment, from its own nominal start (q0, v0 of the segment)
-    rc, stdout, _ = _run(["solve", "twoseg", "--segment", "1", "--max-iter", "1", "--no-fidelity", "--no-animation",
+    rc, stdout, _ = run_cli(["solve", "twoseg", "--segment", "1", "--max-iter", "1", "--no-fidelity", "--no-animation",
                           "--out", str(tmp_path / "one"), "--json"])
-    s = _one_json(stdout)
+    s = one_json(stdout)
     assert rc == 1 and len(s["segments"]) == 1 and s["provenance"]["source"]["segment"] == "1"
     sol = cs.load_solution(tmp_path / "one" / "solution.npz")
     np.testing.assert_allclose(sol.trajectory["q"][0], p.q0)
-    rc, stdout, _ = _run(["solve", "twoseg", "--segment", "roll", "--json"])
-    assert rc == 2 and "no segment 'roll'" in _one_json(stdout)["message"]
+    rc, stdout, _ = run_cli(["solve", "twoseg", "--segment", "roll", "--json"])
+    assert rc == 2 and "no segment 'roll'" in one_json(stdout)["message"]
 
 
 def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
@@ -267,8 +251,8 @@ def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
     p, _ = cli.resolve_problem(EXAMPLE, cli._parse_set(HALF[1::2]))
     monkeypatch.setitem(examples.registry(), "standin", lambda: p)
     monkeypatch.setattr(viz_demo, "DEMO_PROBLEM", "standin")
-    rc, stdout, stderr = _run(["demo", "--out", str(tmp_path), "--guess", "--json"])
-    s = _one_json(stdout)
+    rc, stdout, stderr = run_cli(["demo", "--out", str(tmp_path), "--guess", "--json"])
+    s = one_json(stdout)
     assert rc == 1 and s["success"] is False  # --guess: not solved, exit 1 as for `cstorm solve --guess`
     assert s["provenance"]["source"] == {"kind": "example", "name": "standin", "kwargs": {}}
     assert s["provenance"]["command"][:2] == ["cstorm", "demo"]
@@ -281,8 +265,8 @@ def test_demo_path_with_a_stand_in_problem(solved, tmp_path, monkeypatch):
 def test_demo_solves_the_tumbler_sequence(tmp_path):
     """The real main demo (what `bash scripts/demo.sh` runs): the tumbler's four segments
     solved chained, every segment's success criteria met (~11 min on a 2-core machine)."""
-    rc, stdout, _ = _run(["demo", "--out", str(tmp_path), "--json"])
-    s = _one_json(stdout)
+    rc, stdout, _ = run_cli(["demo", "--out", str(tmp_path), "--json"])
+    s = one_json(stdout)
     assert rc == 0 and s["success"] and s["problem"] == "tumbler", s["message"]
     assert [g["problem"] for g in s["segments"]] == ["handstand", "roll", "standing", "start"]
     assert all(c["ok"] for c in s["criteria"].values()) and s["fidelity"]["ok"]

@@ -18,22 +18,10 @@ import pytest
 import cstorm as cs
 from cstorm.cli import main
 from cstorm.cli import outdir
+from helpers import one_json, run_cli
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "acrobot.toml")
 SRC = os.path.dirname(os.path.dirname(os.path.abspath(cs.__file__)))
-
-
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
-
-
-def _one_json(stdout):
-    lines = [ln for ln in stdout.splitlines() if ln.strip()]
-    assert len(lines) == 1, stdout
-    return json.loads(lines[0])
 
 
 # ---------------------------------------------------------------------------------------
@@ -58,8 +46,8 @@ _CASES = [
 def test_user_errors_exit_2_before_compiling(argv, words, tmp_path):
     if argv[0] == "solve":
         argv = argv + ["--out", str(tmp_path / "out")]
-    rc, stdout, stderr = _run(argv + ["--json"])
-    r = _one_json(stdout)
+    rc, stdout, stderr = run_cli(argv + ["--json"])
+    r = one_json(stdout)
     assert rc == 2 and r["success"] is False, r
     for w in words:
         assert w in r["message"], r["message"]
@@ -70,8 +58,8 @@ def test_out_that_is_a_file_or_cannot_be_created(tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
     for out, word in ((f, "exists and is not a directory"), (f / "sub", "cannot create the directory")):
-        rc, stdout, stderr = _run(["solve", "acrobot", "--out", str(out), "--json"])
-        m = _one_json(stdout)["message"]
+        rc, stdout, stderr = run_cli(["solve", "acrobot", "--out", str(out), "--json"])
+        m = one_json(stdout)["message"]
         assert rc == 2 and f"--out {out}" in m and word in m and "Traceback" not in stderr
 
 
@@ -82,8 +70,8 @@ def test_ipopt_without_casadi_is_refused_before_compiling(tmp_path):
         pytest.skip("casadi is installed")
     except ImportError:
         pass
-    rc, stdout, stderr = _run(["solve", "acrobot", "--method", "ipopt", "--out", str(tmp_path), "--json"])
-    assert rc == 2 and "casadi" in _one_json(stdout)["message"] and "compiling" not in stderr
+    rc, stdout, stderr = run_cli(["solve", "acrobot", "--method", "ipopt", "--out", str(tmp_path), "--json"])
+    assert rc == 2 and "casadi" in one_json(stdout)["message"] and "compiling" not in stderr
 
 
 def test_solver_arguments_are_checked_by_solve_too():
@@ -111,8 +99,8 @@ def test_output_directory_one_run(tmp_path):
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
-    rc, stdout, _ = _run(["solve", "acrobot", "--out", str(foreign), "--json"])
-    assert rc == 2 and "not written by cstorm" in _one_json(stdout)["message"]
+    rc, stdout, _ = run_cli(["solve", "acrobot", "--out", str(foreign), "--json"])
+    assert rc == 2 and "not written by cstorm" in one_json(stdout)["message"]
     assert (foreign / "notes.txt").read_text() == "mine"
 
     ours = tmp_path / "ours"
@@ -120,8 +108,8 @@ def test_output_directory_one_run(tmp_path):
     for f in ("summary.json", "animation.gif", "checkpoint.npz", "checkpoint.npz.seg1.npz"):
         (ours / f).write_text("old")
     outdir.record(str(ours), ["summary.json", "animation.gif"])
-    rc, stdout, _ = _run(["solve", "acrobot", "--out", str(ours), "--json"])
-    m = _one_json(stdout)["message"]
+    rc, stdout, _ = run_cli(["solve", "acrobot", "--out", str(ours), "--json"])
+    m = one_json(stdout)["message"]
     assert rc == 2 and "earlier cstorm run" in m and "--force" in m
     (ours / "user.txt").write_text("kept")
     outdir.prepare(str(ours), force=True)
@@ -154,7 +142,7 @@ def test_warnings_print_as_one_cstorm_line(monkeypatch):
     monkeypatch.setattr(commands, "cmd_info", warn_and_succeed)
     with warnings.catch_warnings():
         warnings.simplefilter("always")
-        rc, _, stderr = _run(["info", "tumbler"])
+        rc, _, stderr = run_cli(["info", "tumbler"])
     assert rc == 0 and stderr.strip() == "cstorm: warning: something odd"
 
 
@@ -278,8 +266,8 @@ def test_check_gradients_reads_per_row_and_finds_a_wrong_entry():
 def test_check_gradients_of_the_contact_problems(name):
     """Correct gradients read correct (the entrywise error of the hopper reads ~5e9: its
     tiny entries next to large ones in the same row; per row 5e-6)."""
-    rc, stdout, stderr = _run(["check-gradients", name, "--json"])
-    r = _one_json(stdout)
+    rc, stdout, stderr = run_cli(["check-gradients", name, "--json"])
+    r = one_json(stdout)
     assert rc == 0 and r["ok"] and r["row_error"] < 1e-4, (r, stderr)
 
 
@@ -355,9 +343,9 @@ def test_sigterm_while_iterating_writes_the_best_iterate_and_resumes(tmp_path):
     rc, _, stderr, out = _stop_at(tmp_path, "iterating", signal.SIGTERM, ["--no-animation"])
     _assert_stopped(rc, stderr, out, signal.SIGTERM, "solving", best_iterate=True)
     assert (out / "checkpoint.npz").exists() and "--resume` continues" in stderr
-    rc, stdout, stderr = _run(["solve", "acrobot", "--set", "t_final=1.0", "--set", "n_ctrl=8", "--max-iter", "2",
+    rc, stdout, stderr = run_cli(["solve", "acrobot", "--set", "t_final=1.0", "--set", "n_ctrl=8", "--max-iter", "2",
                                "--out", str(out), "--resume", "--no-fidelity", "--no-animation", "--json"])
-    assert rc in (0, 1) and "stopped" not in _one_json(stdout) and not (out / "checkpoint.npz").exists()
+    assert rc in (0, 1) and "stopped" not in one_json(stdout) and not (out / "checkpoint.npz").exists()
 
 
 @pytest.mark.slow
@@ -418,15 +406,15 @@ def test_demo_stopped_then_resumed(tmp_path, monkeypatch):
     so = io.StringIO()
     with contextlib.redirect_stdout(so), contextlib.redirect_stderr(err):
         rc = main(argv)
-    s = _one_json(so.getvalue())
+    s = one_json(so.getvalue())
     assert rc == 143 and s["stopped"] == {"reason": "SIGTERM", "phase": "solving"}, err.getvalue()
     assert "Traceback" not in err.getvalue() and "cstorm demo --out" in err.getvalue()
     assert (out / "checkpoint.npz.seg0.npz").exists() and (out / "acrobot_info.txt").exists()
     monkeypatch.delenv("CSTORM_PAUSE_AT")
-    rc, stdout, _ = _run(argv)
-    assert rc == 2 and "--resume" in _one_json(stdout)["message"]
-    rc, stdout, stderr = _run(argv + ["--resume"])
-    s = _one_json(stdout)
+    rc, stdout, _ = run_cli(argv)
+    assert rc == 2 and "--resume" in one_json(stdout)["message"]
+    rc, stdout, stderr = run_cli(argv + ["--resume"])
+    s = one_json(stdout)
     assert "segments" in s, (s, stderr)
     assert rc in (0, 1) and "stopped" not in s and len(s["segments"]) == 2, (s, stderr)
     assert outdir.checkpoint_files(str(out)) == []

@@ -11,7 +11,6 @@ import json
 import os
 import sys
 import threading
-import time
 
 
 def _setup_jax():
@@ -159,6 +158,7 @@ def resolve_problem(spec: str, kwargs=None, segment=None, package_dirs=(), stric
     a problem file's robot loader (shipped examples build their robots themselves)."""
     import cstorm as cs
     from ..errors import InputError
+    from ..io.problemfile import read_problem_file
     from ..report import problem_from_source
 
     if spec.lower().endswith(".toml") or os.path.isdir(spec) or (os.path.sep in spec and os.path.exists(spec)):
@@ -167,16 +167,7 @@ def resolve_problem(spec: str, kwargs=None, segment=None, package_dirs=(), stric
         if os.path.isdir(spec):
             raise InputError(f"problem {spec!r} is a directory; give a .toml problem file or a shipped example "
                              f"({', '.join(cs.examples.names())})")
-        try:
-            with open(spec, "rb") as f:
-                raw = f.read()
-        except OSError as e:
-            raise InputError(f"problem file {spec!r}: cannot read it: {e.strerror or e}") from None
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as e:
-            raise InputError(f"{spec}: not UTF-8 text: {e}") from None
-        source = dict(kind="toml", path=os.path.abspath(spec), text=text)
+        source = dict(kind="toml", path=os.path.abspath(spec), text=read_problem_file(spec))
         if kwargs:
             source["overrides"] = dict(kwargs)
         if package_dirs or strict:

@@ -54,3 +54,19 @@ def active(model, active, fn):
     if len(a) != model.nv:
         raise InputError(f"{fn}: active must be a tuple of nv={model.nv} bools, got length {len(a)}")
     return a
+
+
+_active = active  # (`hybrid_inputs` takes an argument of the same name)
+
+
+def hybrid_inputs(model, q, v, a_active, tau_passive, active, f_ext, fn):
+    """Checked ``(q, v, a_active, tau_passive, active, f_ext)`` of a hybrid-dynamics call
+    (or one of its derivatives) named ``fn`` in the errors."""
+    active = _active(model, active, fn)
+    q = config(model, q, fn)
+    v = vec(model, v, model.nv, "v", fn)
+    na = sum(active)
+    a_active = vec(model, a_active, na, "a_active", fn)
+    tau_passive = vec(model, tau_passive, model.nv - na, "tau_passive", fn)
+    f_ext = fext(model, f_ext, fn)
+    return q, v, a_active, tau_passive, active, f_ext

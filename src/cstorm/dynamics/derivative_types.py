@@ -50,13 +50,5 @@ class ABADerivatives(NamedTuple):
     df_ext: jnp.ndarray
 
 
-def validate_inputs(model, q, v, a_active, tau_passive, active, f_ext, fn):
-    """Checked ``(q, v, a_active, tau_passive, active, f_ext)`` for the derivative function ``fn``."""
-    active = _checks.active(model, active, fn)
-    q = _checks.config(model, q, fn)
-    v = _checks.vec(model, v, model.nv, "v", fn)
-    na = sum(active)
-    a_active = _checks.vec(model, a_active, na, "a_active", fn)
-    tau_passive = _checks.vec(model, tau_passive, model.nv - na, "tau_passive", fn)
-    f_ext = _checks.fext(model, f_ext, fn)
-    return q, v, a_active, tau_passive, active, f_ext
+#: checked ``(q, v, a_active, tau_passive, active, f_ext)`` for the derivative function ``fn``
+validate_inputs = _checks.hybrid_inputs

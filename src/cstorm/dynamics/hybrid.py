@@ -45,14 +45,8 @@ def hybrid_dynamics(model, q, v, a_active, tau_passive, active, f_ext=None):
     Returns:
         (tau_active (n_active,), a_passive (n_passive,)).
     """
-    fn = "hybrid_dynamics"
-    active = _checks.active(model, active, fn)
-    q = _checks.config(model, q, fn)
-    v = _checks.vec(model, v, model.nv, "v", fn)
-    na = sum(active)
-    a_active = _checks.vec(model, a_active, na, "a_active", fn)
-    tau_passive = _checks.vec(model, tau_passive, model.nv - na, "tau_passive", fn)
-    f_ext = _checks.fext(model, f_ext, fn)
+    q, v, a_active, tau_passive, active, f_ext = _checks.hybrid_inputs(model, q, v, a_active, tau_passive, active,
+                                                                      f_ext, "hybrid_dynamics")
     return hybrid_unchecked(model, q, v, a_active, tau_passive, active, f_ext)
 
 

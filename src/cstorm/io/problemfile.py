@@ -39,7 +39,7 @@ from ..errors import CstormError, InputError
 from ..optimize import constraints as K, costs as C
 from ..optimize.problem import MotionProblem
 
-__all__ = ["ProblemFileError", "load_problem", "load_problem_text"]
+__all__ = ["ProblemFileError", "load_problem", "load_problem_text", "read_problem_file"]
 
 
 class ProblemFileError(InputError):
@@ -153,16 +153,21 @@ def load_problem(path, overrides=None, package_dirs=(), strict=False):
     ``success_criteria`` from the file). ``overrides``: see `apply_overrides`;
     ``package_dirs``, ``strict``: see `load_problem_text`."""
     path = os.fspath(path)
+    return load_problem_text(read_problem_file(path), path, overrides, package_dirs=package_dirs, strict=strict)
+
+
+def read_problem_file(path):
+    """The text of the problem file ``path`` (UTF-8); a `ProblemFileError` naming the file
+    if it cannot be read or is not UTF-8 text."""
     try:
         with open(path, "rb") as f:
             raw = f.read()
     except OSError as e:
         raise ProblemFileError(f"{path}: cannot read the problem file: {e.strerror or e}") from None
     try:
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8")
     except UnicodeDecodeError as e:
         raise ProblemFileError(f"{path}: not UTF-8 text: {e}") from None
-    return load_problem_text(text, path, overrides, package_dirs=package_dirs, strict=strict)
 
 
 def apply_overrides(doc: dict, overrides: dict, path: str = "<string>") -> dict:
@@ -528,15 +533,21 @@ _COSTS = {
 }
 
 
-def _cost(ctx, c, k, joints, params, C):
-    w = f"[[cost]] #{k + 1}"
-    t = ctx.string(c, "type", w, required=True, choices=tuple(_COSTS))
-    allowed, required = _COSTS[t]
-    w = f"{w} ({t})"
-    ctx.keys(c, allowed | {"type"}, w)
+def _entry_type(ctx, c, where, table):
+    """``(type, where)`` of a ``[[cost]]`` or ``[[constraint]]`` entry: its ``type`` among
+    ``table``'s, its keys checked against the type's allowed and required ones."""
+    t = ctx.string(c, "type", where, required=True, choices=tuple(table))
+    allowed, required = table[t]
+    where = f"{where} ({t})"
+    ctx.keys(c, allowed | {"type"}, where)
     for r in sorted(required):
         if r not in c:
-            raise ctx.err(w, f"missing key {r!r}")
+            raise ctx.err(where, f"missing key {r!r}")
+    return t, where
+
+
+def _cost(ctx, c, k, joints, params, C):
+    t, w = _entry_type(ctx, c, f"[[cost]] #{k + 1}", _COSTS)
     weight = ctx.value_or_param(c.get("weight", 1.0), f"{w} weight", params)
     if t in ("torque_squared", "power"):
         js = ctx.names(c["joints"], f"{w} joints", joints) if "joints" in c else None
@@ -566,14 +577,7 @@ _CONSTRAINTS = {
 
 
 def _constraint(ctx, c, k, joints, params, K):
-    w = f"[[constraint]] #{k + 1}"
-    t = ctx.string(c, "type", w, required=True, choices=tuple(_CONSTRAINTS))
-    allowed, required = _CONSTRAINTS[t]
-    w = f"{w} ({t})"
-    ctx.keys(c, allowed | {"type"}, w)
-    for r in sorted(required):
-        if r not in c:
-            raise ctx.err(w, f"missing key {r!r}")
+    t, w = _entry_type(ctx, c, f"[[constraint]] #{k + 1}", _CONSTRAINTS)
     stage = ctx.number(c, "stage", w, default=0, integer=True, nonneg=True)
     name = ctx.string(c, "name", w)
     if t == "terminal_state":

@@ -206,10 +206,9 @@ class _Compiled:
 
     def __init__(self, ocp: OCP):
         self.ocp = ocp
-        self.evaluate = jax.jit(self._evaluate)
         self.linearize = jax.jit(self._linearize)
         self.backward = jax.jit(self._backward)
-        self.forward = jax.jit(self._forward)
+        self._forward_jit = jax.jit(self._forward)
         self.project = jax.jit(self._project)
         self.node_terms = jax.jit(self._node_terms)
 
@@ -232,17 +231,16 @@ class _Compiled:
         out["merit"] = out["cost"] + pen
         return out
 
-    def _evaluate(self, X, U, data, al):
-        """Values of an iterate: ``dict(cost, merit, ve, vi (per-row violations), gaps
-        (N+1, nx), Y)``."""
-        o = self.ocp
-        ks = jnp.arange(o.n_steps)
-        Xn, Yh = jax.vmap(lambda x, u, k: o.step(x, u, k, data))(X[:-1], U[:-1], ks)
-        yN = o.point(X[-1], U[-1], o.n_steps, data)
-        Y = jnp.concatenate([Yh, yN[None]])
-        gaps = jax.vmap(o.difference)(X[1:], Xn)
-        gaps = jnp.concatenate([jnp.zeros((1, o.nx), X.dtype), gaps])
-        return dict(self._node_terms(Y, data, al), gaps=gaps, Y=Y)
+    def evaluate(self, X, U, data, al):
+        """Values of an iterate (multiple shooting: every step starts at its own node
+        ``X_k``): ``dict(cost, merit, ce, ci, ve, vi (per-row violations), gaps (N+1, nx),
+        Y (N+1, n_y), bad)``. The forward pass's compiled function in its shooting mode,
+        so an evaluation costs no compile of its own."""
+        z = jnp.zeros_like(U)
+        K0 = jnp.zeros(U.shape + (self.ocp.nx,), U.dtype)
+        inf = jnp.full(U.shape, jnp.inf, U.dtype)
+        return self.forward(X, U, z, K0, jnp.zeros(X.shape[:1] + (self.ocp.nx,), X.dtype), 0.0, -inf, inf, data,
+                            al, shoot=True)
 
     # -- linearization -------------------------------------------------------------------
     def _linearize(self, X, U, data, al):
@@ -411,26 +409,33 @@ class _Compiled:
         return dict(k=k, d1=d1, d2=d2, nu=nu_, resid=resid, ok=ok)
 
     # -- forward pass --------------------------------------------------------------------
-    def _forward(self, X, U, k, K, gaps, alpha, lb, ub, data, al):
-        """Rollout with feedback at step ``alpha``: the new ``(X, U)`` and its values
-        (as `_evaluate`), with ``bad`` (the rollout left the valid states)."""
+    def forward(self, X, U, k, K, gaps, alpha, lb, ub, data, al, shoot=False):
+        """`_forward`, compiled once for both modes (``shoot`` is traced)."""
+        return self._forward_jit(X, U, k, K, gaps, alpha, lb, ub, data, al, jnp.asarray(shoot))
+
+    def _forward(self, X, U, k, K, gaps, alpha, lb, ub, data, al, shoot):
+        """Rollout with feedback at step ``alpha``: the new ``(X, U)``, its values (cost,
+        merit, rows, as `_node_terms`), its gaps (N+1, nx) (``f(x_{k-1}, u_{k-1}) (-)
+        x_k``, the tangent at ``x_k``; 0 at the start) and ``bad`` (the rollout left the
+        valid states). ``shoot=True``: every step starts at its node ``X_k`` instead (the
+        evaluation of a multiple-shooting iterate, `evaluate`)."""
         o = self.ocp
 
         def body(carry, z):
             xpred, bad = carry
             x_ref, u_ref, kk, KK, f, lo, hi, i = z
-            x = o.integrate(xpred, (alpha - 1.0) * f)
+            x = jnp.where(shoot, x_ref, o.integrate(xpred, (alpha - 1.0) * f))
             dx = o.difference(x_ref, x)
             u = jnp.clip(u_ref + alpha * kk + KK @ dx, lo, hi)
             xn, y = o.step(x, u, i, data)
             nbad = bad | o.x_bad(xn)
             xn = jnp.where(nbad, x, xn)  # frozen once bad: nothing downstream turns NaN
-            return (xn, nbad), (x, u, y)
+            return (xn, nbad), (x, u, y, xn)
 
         N = o.n_steps
         xs = (X[:-1], U[:-1], k[:-1], K[:-1], gaps[:-1], lb[:-1], ub[:-1], jnp.arange(N))
-        (xpred, bad), (Xn, Un, Yh) = jax.lax.scan(body, (X[0], jnp.zeros((), bool)), xs)
-        xN = o.integrate(xpred, (alpha - 1.0) * gaps[-1])
+        (xpred, bad), (Xn, Un, Yh, Xpred) = jax.lax.scan(body, (X[0], jnp.zeros((), bool)), xs)
+        xN = jnp.where(shoot, X[-1], o.integrate(xpred, (alpha - 1.0) * gaps[-1]))
         uN = jnp.clip(U[-1] + alpha * k[-1] + K[-1] @ o.difference(X[-1], xN), lb[-1], ub[-1])
         yN = o.point(xN, uN, N, data)
         Xn = jnp.concatenate([Xn, xN[None]])
@@ -438,8 +443,10 @@ class _Compiled:
         Y = jnp.concatenate([Yh, yN[None]])
         out = self._node_terms(Y, data, al)
         bad = bad | ~jnp.all(jnp.isfinite(Y)) | ~jnp.isfinite(out["merit"])
-        # the gaps left: (1 - alpha) of the old ones (exactly, up to the transport)
-        return dict(out, X=Xn, U=Un, Y=Y, gaps=(1.0 - alpha) * gaps, bad=bad)
+        # the gaps left (FDDP: (1 - alpha) of the old ones, up to the transport)
+        new_gaps = jax.vmap(o.difference)(Xn[1:], Xpred)
+        new_gaps = jnp.concatenate([jnp.zeros((1, o.nx), X.dtype), new_gaps])
+        return dict(out, X=Xn, U=Un, Y=Y, gaps=new_gaps, bad=bad)
 
 
 def _padded(lin):
@@ -574,7 +581,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 lin = None
                 row_prev = _row_state(ev)
                 inner = 0
-                ev = C.evaluate(X, U, data, al)
+                ev = dict(ev, **C.node_terms(ev["Y"], data, al))
                 continue
             # line search: first along the step that meets the end rows' linearization
             # (`_project`), then along the penalty-only step

@@ -533,8 +533,10 @@ def _follow_guess(C, tr, lin, X, U, data, al):
     # final tracking error
     p = tr.problem
     nq = p.model.nq
-    xN = jnp.asarray(X1[-1:])
-    hold = np.asarray(_guess_torques(p, xN[:, :nq], xN[:, nq:], jnp.zeros((1, len(p.layout.va_idx))), data))[0]
+    # (evaluated on N+1 copies: the guess's compiled shape, no second compile)
+    xN = jnp.tile(jnp.asarray(X1[-1:]), (X1.shape[0], 1))
+    hold = np.asarray(_guess_torques(p, xN[:, :nq], xN[:, nq:], jnp.zeros((xN.shape[0], len(p.layout.va_idx))),
+                                     data))[0]
     U1[-1] = np.clip(hold, tr.lb[-1], tr.ub[-1])
     return X1, U1
 
@@ -616,6 +618,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
         data["q0"] = jnp.asarray(q0, jnp.float64)
     if v0 is not None:
         data["v0"] = jnp.asarray(v0, jnp.float64)
+    tc = time.perf_counter()  # compile (timed separately): the guess's and one call of each compiled function
     X0, U0 = initial_guess(tr, data) if guess is None else (np.asarray(guess[0], float), np.asarray(guess[1], float))
     X0 = np.array(X0)
     X0[0] = np.concatenate([np.asarray(data["q0"]), np.asarray(data["v0"])])
@@ -623,8 +626,6 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                      verbose=bool(verbose), **(options or {}))
     stream = out or sys.stdout
     log = lambda s: print(s, file=stream, flush=True)
-    # compile (timed separately): one call of each compiled function
-    tc = time.perf_counter()
     al = initial_multipliers(tr.ocp, opt.mu0)
     Xj, Uj = jnp.asarray(X0), jnp.clip(jnp.asarray(U0), tr.lb, tr.ub)
     lin = C.linearize(Xj, Uj, data, al)

@@ -263,16 +263,13 @@ class _Compiled:
                 jnp.eye(nx + nu, dtype=x.dtype))
             return dxn, y, Jx, Jy
 
-        ks = jnp.arange(N)
-        gaps, Yh, Jn, JYh = jax.vmap(node)(X[:-1], U[:-1], X[1:], ks)
-
-        def last(z):
-            return o.point(o.integrate(X[-1], z[:nx]), z[nx:], N, data)
-
-        zN = jnp.concatenate([jnp.zeros(nx, X.dtype), U[-1]])
-        yN, JyN = last(zN), jax.jacfwd(last)(zN)
-        Y = jnp.concatenate([Yh, yN[None]])
-        JY = jnp.concatenate([JYh, JyN[None]])
+        # every node, the last one included: its point and the point's Jacobian come from
+        # the same compiled step (its own step past t_final is discarded), so the
+        # dynamics and its derivatives are compiled once, not once more for node N
+        ks = jnp.arange(N + 1)
+        gaps, Y, Jn, JY = jax.vmap(node)(X, U, jnp.concatenate([X[1:], X[-1:]]), ks)
+        gaps, Jn = gaps[:-1], Jn[:-1]
+        yN, JyN = Y[-1], JY[-1]
         me, mi = jnp.asarray(o.mask_eq), jnp.asarray(o.mask_in)
 
         def merit_derivs(y, J, k, me_, mi_, le, li, mue, mui):

@@ -470,7 +470,7 @@ def initial_guess(tr: Transcription, data=None):
     if len(ia):
         Q[:, ia], V[:, iva] = qa, va
     Q[0], V[0] = p.q0, p.v0
-    U = np.asarray(_guess_torques(p, jnp.asarray(Q), jnp.asarray(V), jnp.asarray(aa), data))
+    U = _guess_torques(tr, Q, V, aa, data)
     return np.concatenate([Q, V], axis=1), U
 
 
@@ -495,22 +495,25 @@ def tracking_gains(tr: Transcription, data=None, bandwidth=None):
     return K
 
 
-def _guess_torques(p, Q, V, AA, data):
-    """Motor torques (N+1, n_active) that give the active accelerations ``AA`` at the
-    states ``(Q, V)`` (hybrid dynamics with the passive DoFs' own forces and contact)."""
-    lay = p.layout
-    iva, ivp = np.array(lay.va_idx, int), np.array(lay.vp_idx, int)
-    cfn = p.contact_fn
-
-    def one(q, v, aa, data):
-        model = data["model"]
-        pf = passive_forces(model, q, v)
-        f_ext = None if cfn is None else cfn(model, data.get("env"), data.get("contact"), q, v)[0]
-        tau_a, _ = hybrid_fast(model, q, v, aa, pf[ivp], lay.active, f_ext)
-        return tau_a - pf[iva]
-
-    key = "ddp_guess_torques"  # compiled once per problem (the guess and the hold torques share it)
-    return p.cached(key, lambda: jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None))))(Q, V, AA, data)
+def _guess_torques(tr, Q, V, AA, data):
+    """Motor torques (N+1, n_active) that give the active accelerations ``AA`` (N+1,
+    n_active) at the states ``(Q, V)`` (N+1 rows each; hybrid dynamics with the passive
+    DoFs' own forces and contact). The accelerations are affine in the torques (contact
+    and passive forces depend on ``q, v`` only), ``a_a = a_0 + G u``, so ``n_active + 1``
+    evaluations of the transcription's own forward dynamics at each node (`_Compiled`'s
+    shooting evaluation, torques 0 and each unit torque) give ``a_0`` and ``G`` exactly,
+    without compiling an inverse dynamics of its own."""
+    p = tr.problem
+    iva = np.array(p.layout.va_idx, int)
+    nu = len(iva)
+    _, C = compiled_transcription(p)
+    X = jnp.concatenate([jnp.asarray(Q), jnp.asarray(V)], axis=1)
+    al = initial_multipliers(tr.ocp, 1.0)
+    acc = lambda U: np.asarray(jax.vmap(tr.unravel)(C.evaluate(X, U, data, al)["Y"])["a"])[:, iva]
+    U0 = jnp.zeros((X.shape[0], nu))
+    a0 = acc(U0)
+    G = np.stack([acc(U0.at[:, j].set(1.0)) - a0 for j in range(nu)], axis=2)  # (N+1, n_active, n_active)
+    return np.linalg.solve(G, (np.asarray(AA) - a0)[:, :, None])[:, :, 0]
 
 
 def _follow_guess(C, tr, lin, X, U, data, al):
@@ -533,10 +536,9 @@ def _follow_guess(C, tr, lin, X, U, data, al):
     # final tracking error
     p = tr.problem
     nq = p.model.nq
-    # (evaluated on N+1 copies: the guess's compiled shape, no second compile)
-    xN = jnp.tile(jnp.asarray(X1[-1:]), (X1.shape[0], 1))
-    hold = np.asarray(_guess_torques(p, xN[:, :nq], xN[:, nq:], jnp.zeros((xN.shape[0], len(p.layout.va_idx))),
-                                     data))[0]
+    # (evaluated on N+1 copies: the compiled shape)
+    xN = np.tile(X1[-1:], (X1.shape[0], 1))
+    hold = _guess_torques(tr, xN[:, :nq], xN[:, nq:], np.zeros((xN.shape[0], len(p.layout.va_idx))), data)[0]
     U1[-1] = np.clip(hold, tr.lb[-1], tr.ub[-1])
     return X1, U1
 

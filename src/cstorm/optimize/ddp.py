@@ -149,7 +149,9 @@ class DDPResult:
     "diverged"), ``iterations``, ``history`` (per-iteration dicts), ``lam_eq``,
     ``lam_in``, ``mu_eq``, ``mu_in`` (final multipliers and penalties), ``worst`` (the
     most violated row, `_worst_row`) and ``multipliers`` (every multiplier and penalty,
-    node and trajectory rows: what `solve_ocp` takes back as ``multipliers`` to warm-start)."""
+    node and trajectory rows: what `solve_ocp` takes back as ``multipliers`` to warm-start)
+    and ``K`` (N+1, nu, nx): the feedback gains of the Riccati pass at ``(X, U)``, the
+    local policy ``u = U_k + K_k (x (-) X_k)``."""
 
     X: np.ndarray
     U: np.ndarray
@@ -167,6 +169,7 @@ class DDPResult:
     mu_in: np.ndarray
     worst: tuple = None
     multipliers: dict = None
+    K: np.ndarray = None
 
 
 def _worst_row(ev):
@@ -660,11 +663,28 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
     viol = _max(_rows(ev))
     worst = _worst_row(ev)
+    K = _feedback_gains(C, X, U, data, al, lb, ub, reg, opt)
     return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
+                     K=K,
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),
                      status=status, iterations=it, history=history, lam_eq=np.asarray(al["lam_eq"]),
                      lam_in=np.asarray(al["lam_in"]), mu_eq=np.asarray(al["mu_eq"]), mu_in=np.asarray(al["mu_in"]),
                      multipliers={k: np.asarray(v) for k, v in al.items()})
+
+
+def _feedback_gains(C, X, U, data, al, lb, ub, reg, opt):
+    """The feedback gains ``K`` (N+1, nu, nx) of the Riccati pass at the iterate ``(X,
+    U)``: the local policy ``u = U_k + K_k (x (-) X_k)`` (zero rows for controls at a
+    bound). The regularization is the solver's last, raised until the pass succeeds;
+    zeros if it never does."""
+    lin = C.linearize(X, U, data, al)
+    r = max(reg, opt.reg_min)
+    while r <= opt.reg_max:
+        bw = C.backward(lin, U, lb, ub, r)
+        if bool(bw["ok"]):
+            return np.asarray(bw["K"])
+        r *= 10.0
+    return np.zeros(U.shape + (lin["A"].shape[1],))
 
 
 def _shift_end_multipliers(al, nu, n_eq, ev):

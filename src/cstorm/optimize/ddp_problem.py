@@ -543,39 +543,55 @@ def _follow_guess(C, tr, lin, X, U, data, al):
     return X1, U1
 
 
-def resimulate(problem, U, q0, v0, factor=4, integrator=None):
+def resimulate(problem, U, q0, v0, factor=4, integrator=None, X=None, K=None):
     """Re-simulate a DDP solution's controls ``U`` ((N+1, n_active) motor torques, each
     held over its step) from ``(q0, v0)`` with ``integrator`` (default the problem's) at
-    ``dt / factor``. Returns ``(Q (N+1, nq), V (N+1, nv))`` on the problem's grid;
-    raises `DivergenceError` if the states leave the bounds."""
+    ``dt / factor``. With the plan's states ``X`` (N+1, nq+nv) and feedback gains ``K``
+    (N+1, n_active, 2 nv) (the solution's ``trajectory["feedback"]``), closed loop: the
+    torque of step ``k`` is ``clip(U_k + K_k (x_k (-) X_k))`` within the torque limits,
+    evaluated at the step's start and held over its ``factor`` substeps (the solver's
+    local policy, as a controller tracking the plan would run it). Returns ``(Q (N+1,
+    nq), V (N+1, nv), U_applied (N+1, n_active))`` on the problem's grid; raises
+    `DivergenceError` if the states leave the bounds."""
 
     tr, _ = compiled_transcription(problem)
     integ = integrator or problem.integrator
     key = ("ddp_resim", int(factor), integ)
+    diff = tr.ocp.difference
 
     def build():
         layout_all = RolloutLayout.make(problem.model, ())
         sub = _SubProblem(problem, factor, integ)
         step, _ = _stepper(sub, tr.dyn, layout_all, lambda q, v, a, tau, cd: jnp.zeros(0))
 
-        def run(x0, U, data):
-            def one(x, u):
+        def run(x0, U, X, K, lb, ub, data):
+            def one(x, z):
+                u_ref, x_ref, K_, lo, hi = z
+                u = jnp.clip(u_ref + K_ @ diff(x_ref, x), lo, hi)
+
                 def inner(xx, _):
                     return step(xx, u, 0, data)[0], None
                 xn = jax.lax.scan(inner, x, None, length=int(factor))[0]
-                return xn, xn
-            _, xs = jax.lax.scan(one, x0, U[:-1])
-            return jnp.concatenate([x0[None], xs])
+                return xn, (xn, u)
+            xN, (xs, us) = jax.lax.scan(one, x0, (U[:-1], X[:-1], K[:-1], lb[:-1], ub[:-1]))
+            uN = jnp.clip(U[-1] + K[-1] @ diff(X[-1], xN), lb[-1], ub[-1])
+            return jnp.concatenate([x0[None], xs]), jnp.concatenate([us, uN[None]])
 
         return jax.jit(run)
 
+    U = jnp.asarray(U, jnp.float64)
     x0 = jnp.concatenate([jnp.asarray(q0, jnp.float64), jnp.asarray(v0, jnp.float64)])
-    X = np.asarray(problem.cached(key, build)(x0, jnp.asarray(U, jnp.float64), tr.data))
+    if K is None:
+        K = jnp.zeros(U.shape + (2 * problem.model.nv,))
+        X = jnp.tile(x0, (U.shape[0], 1))
+    X, U_applied = problem.cached(key, build)(x0, U, jnp.asarray(X, jnp.float64), jnp.asarray(K, jnp.float64),
+                                              jnp.asarray(tr.lb), jnp.asarray(tr.ub), tr.data)
+    X = np.asarray(X)
     nq = problem.model.nq
     if not np.all(np.isfinite(X)) or np.any(np.abs(X[:, :nq]) > problem.q_bound) or \
             np.any(np.abs(X[:, nq:]) > problem.v_bound):
         raise DivergenceError(f"{problem.name}: the re-simulation of the torques at dt/{factor} diverged")
-    return X[:, :nq], X[:, nq:]
+    return X[:, :nq], X[:, nq:], np.asarray(U_applied)
 
 
 @dataclasses.dataclass
@@ -612,7 +628,10 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     from the posture-level guess (`initial_guess`) or ``guess = (X0, U0)``; ``q0``, ``v0``:
     another start state (a sequence's later segments). Returns a `Solution` whose
     ``x`` is the controls ``U.ravel()`` ((N+1) n_active motor torques, N m) and whose
-    trajectory carries them as ``u`` (N+1, n_active)."""
+    trajectory carries them as ``u`` (N+1, n_active), and the solver's feedback gains at
+    the solution as ``feedback`` (N+1, n_active, 2 nv; the local policy ``u = u_k + K_k
+    (x (-) x_k)``, N m per tangent unit of the state, what `resimulate` runs closed
+    loop)."""
     t0 = time.perf_counter()
     tr, C = compiled_transcription(problem)
     data = dict(tr.data)
@@ -649,6 +668,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                     row_label=tr.row_label)
     traj = tr.trajectory(res.Y)
     traj["u"] = np.asarray(res.U)
+    traj["feedback"] = np.asarray(res.K)
     if traj.get("contact") is not None:
         traj["contact"] = contact_dict(traj["contact"])
     success = res.converged and res.violation <= constraint_tol

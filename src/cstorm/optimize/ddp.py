@@ -118,6 +118,9 @@ class DDPOptions:
     multiplies it by ``reg_down``, an accepted step shorter than ``reg_up_below`` by 10.
     alpha_min: the shortest line-search step. project_end: try the step that meets the
     final node's rows' linearization (`_Compiled._project`) before the penalty-only step.
+    gap_merit: while the iterate has gaps, judge steps on the merit plus ``sigma sum |f_k|``
+    (``sigma = 2 max |V_x|``), so the gaps close as far as the merit allows; off, any step
+    is accepted while gaps remain (Crocoddyl's FDDP rule).
     verbose: print one line per iteration.
     """
 
@@ -134,6 +137,7 @@ class DDPOptions:
     reg_down: float = 1.0 / 3.0
     reg_up_below: float = 0.5
     project_end: bool = True
+    gap_merit: bool = True
     armijo: float = 0.1
     inner_max_iter: int = 60
     stall_window: int = 5
@@ -361,7 +365,8 @@ class _Compiled:
         f = lin["gaps"]
         dg = jnp.sum(jnp.einsum("ki,ki->k", Vx, f))
         dq = jnp.sum(jnp.einsum("ki,kij,kj->k", f, Vxx, f))
-        return dict(k=k, K=K, ke=ke, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok)
+        return dict(k=k, K=K, ke=ke, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok,
+                    vmax=jnp.max(jnp.abs(Vx)))
 
     # -- the end rows as constraints of the LQ subproblem ---------------------------------
     def _project(self, lin, bw, me_N, mi_N):
@@ -595,6 +600,12 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     steps.append((pj["k"], float(pj["d1"]) - sigma * _end_viol(ev), float(pj["d2"]), "end"))
             steps.append((bw["k"], d1, d2, "al"))
             alpha, accepted, kind = 1.0, None, None
+            # while gaps remain: the merit plus an exact penalty on them (sigma above the
+            # costates |V_x|), so that a step closes them only as far as the merit allows
+            # (a full step is a rollout of the whole horizon, which on a contact problem
+            # can tip the robot over); 0 with the "accept any step while infeasible" rule
+            gsum = 0.0 if feasible else float(jnp.sum(jnp.abs(ev["gaps"])))
+            sigma_g = 2.0 * float(bw["vmax"]) if (opt.gap_merit and not feasible) else 0.0
             for k_try, e1, e2, kind in steps:
                 if feasible and e1 + 0.5 * e2 >= 0 and kind == "end":
                     continue  # not a descent direction of the merit
@@ -608,7 +619,11 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                         if kind == "end":
                             dm += sigma * (_end_viol(tr) - _end_viol(ev))
                         pred = alpha * e1 + 0.5 * alpha * alpha * e2
-                        if not feasible or dm <= opt.armijo * pred or (pred > -1e-14 * (1 + abs(merit)) and dm <= 0):
+                        if sigma_g > 0.0:
+                            dm += sigma_g * (float(jnp.sum(jnp.abs(tr["gaps"]))) - gsum)
+                            pred = min(pred - alpha * sigma_g * gsum, -alpha * sigma_g * gsum)
+                        if (not feasible and sigma_g == 0.0) or dm <= opt.armijo * pred or \
+                                (pred > -1e-14 * (1 + abs(merit)) and dm <= 0):
                             accepted = tr
                             break
                     alpha *= 0.5

@@ -52,7 +52,6 @@ import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
 from ..dynamics.configuration import difference as q_difference, integrate as q_integrate
-from ..dynamics.crba import mass_matrix
 from ..dynamics.derivatives_fast import hybrid_fast
 from ..dynamics.hybrid import hybrid_unchecked
 from ..dynamics.passive import passive_forces
@@ -474,27 +473,6 @@ def initial_guess(tr: Transcription, data=None):
     return np.concatenate([Q, V], axis=1), U
 
 
-def tracking_gains(tr: Transcription, data=None, bandwidth=None):
-    """(N+1, n_active, 2 nv) feedback gains ``u = U + K (x (-) X)`` of a joint-space PD
-    law on the active joints, critically damped at ``bandwidth`` rad/s (default ``1 /
-    (10 dt)``: stiff enough that the joints hold the guess's postures under the contact
-    loads, and well inside what the step resolves): ``K_p = M_jj w^2``, ``K_d = 2 M_jj
-    w`` with ``M_jj`` the joint's diagonal inertia (armature included) at the start
-    configuration. The solver's first rollout uses them to follow the guess."""
-
-    p = tr.problem
-    data = tr.data if data is None else data
-    nv, N = p.model.nv, p.n_steps
-    iva = np.array(p.layout.va_idx, int)
-    w = 1.0 / (10.0 * p.dt) if bandwidth is None else float(bandwidth)
-    M = np.asarray(mass_matrix(data["model"], data["q0"]))
-    K = np.zeros((N + 1, len(iva), 2 * nv))
-    for j, i in enumerate(iva):
-        K[:, j, i] = -M[i, i] * w * w
-        K[:, j, nv + i] = -2.0 * M[i, i] * w
-    return K
-
-
 def _guess_torques(tr, Q, V, AA, data):
     """Motor torques (N+1, n_active) that give the active accelerations ``AA`` (N+1,
     n_active) at the states ``(Q, V)`` (N+1 rows each; hybrid dynamics with the passive
@@ -514,33 +492,6 @@ def _guess_torques(tr, Q, V, AA, data):
     a0 = acc(U0)
     G = np.stack([acc(U0.at[:, j].set(1.0)) - a0 for j in range(nu)], axis=2)  # (N+1, n_active, n_active)
     return np.linalg.solve(G, (np.asarray(AA) - a0)[:, :, None])[:, :, 0]
-
-
-def _follow_guess(C, tr, lin, X, U, data, al):
-    """The first iterate: a rollout from the start state of the guess's torques with the
-    joint-space PD law of `tracking_gains` on the active joints (the passive DoFs move as
-    the dynamics says): dynamically consistent and, for a guess whose postures the robot
-    can hold, near it. Returns ``(X, U)`` (numpy) or None if that rollout diverges.
-
-    Why not a time-varying LQR around the guess's states: with stiff contact the LQR's
-    gains on the barely controllable contact modes reach 1e4-5e4 N m per rad, and the
-    clipped torques threw the tumbler over within the first second."""
-    lb, ub = jnp.asarray(tr.lb), jnp.asarray(tr.ub)
-    K = jnp.asarray(tracking_gains(tr, data))
-    r0 = C.forward(X, U, jnp.zeros_like(U), K, lin["gaps"], 1.0, lb, ub, data, al)
-    if bool(r0["bad"]):
-        return None
-    X1, U1 = np.asarray(r0["X"]), np.array(r0["U"])
-    # the final node's torques enter no dynamics: those that hold the active joints still
-    # at the final state (what a rest at the end asks), not the PD law's reaction to the
-    # final tracking error
-    p = tr.problem
-    nq = p.model.nq
-    # (evaluated on N+1 copies: the compiled shape)
-    xN = np.tile(X1[-1:], (X1.shape[0], 1))
-    hold = _guess_torques(tr, xN[:, :nq], xN[:, nq:], np.zeros((xN.shape[0], len(p.layout.va_idx))), data)[0]
-    U1[-1] = np.clip(hold, tr.lb[-1], tr.ub[-1])
-    return X1, U1
 
 
 def resimulate(problem, U, q0, v0, factor=4, integrator=None, X=None, K=None):
@@ -659,11 +610,6 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
         jax.block_until_ready(C.project(lin, bw, jnp.asarray(tr.ocp.mask_eq[-1], bool),
                                         jnp.asarray(tr.ocp.mask_in[-1], bool)))
     compile_s = time.perf_counter() - tc
-    if guess is None:
-        # the first iterate: the guess followed by the joint-space PD law (`_follow_guess`)
-        r0 = _follow_guess(C, tr, lin, Xj, Uj, data, al)
-        if r0 is not None:
-            X0, U0 = r0
     res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log,
                     row_label=tr.row_label)
     traj = tr.trajectory(res.Y)

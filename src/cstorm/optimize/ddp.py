@@ -707,10 +707,16 @@ def _shift_end_multipliers(al, nu, n_eq, ev):
     """``al`` with the final node's multipliers moved by the LQ multipliers ``nu``
     (`_Compiled._project`; the equality rows' ``lambda + nu``, the inequality rows'
     ``max(0, lambda - nu)``: PHR's ``lambda`` multiplies ``-c_in``), each move no larger
-    than the augmented Lagrangian's own update at the iterate before the step (``mu |c|``
-    of the row, ``ev``): a nearly singular row system gives huge ``nu``, which would
-    make the penalties unbounded below."""
+    than the larger of the augmented Lagrangian's own update at the iterate before the
+    step (``mu |c|`` of the row, ``ev``) and ``|lambda| + 1`` (a multiplier may double
+    per step): a nearly singular row system gives huge ``nu``, which would make the
+    penalties unbounded below. Capped at ``mu |c|`` alone, the multipliers of rows that
+    are nearly met (``c -> 0``) could not move, and the iterates zig-zagged between the
+    rows' step and the penalties' for hundreds of iterations (two perturbed Luxo hops:
+    500 iterations unconverged; with this cap 271 and 118)."""
     cap = jnp.concatenate([al["mu_eq"][-1] * jnp.abs(ev["ce"][-1]), al["mu_in"][-1] * jnp.abs(ev["ci"][-1])])
+    lam = jnp.concatenate([jnp.abs(al["lam_eq"][-1]), jnp.abs(al["lam_in"][-1])])
+    cap = jnp.maximum(cap, lam + 1.0)
     nu = jnp.clip(nu, -cap, cap)
     out = dict(al)
     out["lam_eq"] = al["lam_eq"].at[-1].add(nu[:n_eq])

@@ -140,6 +140,8 @@ def test_acrobot_swing_up_with_terminal_constraints():
     p = cs.examples.acrobot(continuation=False)
     sol = cs.solve(p, method="ddp")
     assert sol.success, sol.message
+    # the swing-up's tracked rollout is well-conditioned: it is the first iterate
+    assert sol.info["first_iterate"] == "rollout"
     tr = sol.trajectory
     assert abs(tr["q"][-1, 0] - np.pi) < 1e-5 and abs(tr["v"][-1, 0]) < 1e-5
     assert abs(tr["q"][-1, 1]) < 1e-5 and abs(tr["v"][-1, 1]) < 1e-5

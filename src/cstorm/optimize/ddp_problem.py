@@ -36,8 +36,9 @@ Transcription
 - Initial guess (`initial_guess`): the active joints follow the problem's initial
   guess (its splines), the passive joints its ``node_guess`` (a state-level guess) or
   rest at ``q0``; the controls are the torques that the hybrid dynamics needs along that
-  path. It is generally not dynamically consistent: FDDP starts from it with gaps and
-  closes them.
+  path. It is generally not dynamically consistent: the solver starts from its tracked
+  rollout where that is well-conditioned, and from it with its gaps otherwise
+  (`first_iterate`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib
 import json
 import os
 import tempfile
@@ -58,11 +57,12 @@ def _luxo_variant(rng, k):
     the guess's keyframe postures jittered by N(0, 0.05) rad. The start and the landing
     pose are the variant's own standing equilibrium. Horizon and step as shipped (one
     compiled shape). Variant 0 is the nominal problem."""
-    L = importlib.import_module("cstorm.examples.luxo")  # (the package exports the function `luxo`)
-    from cstorm.examples.hopping import hop_problem, standing_equilibrium
     from cstorm.contact import Environment, ground
+    from cstorm.examples.hopping import standing_equilibrium
+    from cstorm.examples.luxo import ACTIVE, FOOT_LENGTH, KEYFRAMES, REST_ACTIVE, REST_PITCH, REST_Z, luxo, \
+        luxo_contact, luxo_model
 
-    model = L.luxo_model()
+    model = luxo_model()
     if k == 0:
         ms, fr, ks, ds, noise = 1.0, 0.8, 1.0, 1.0, 0.0
         mass = np.ones(model.n_bodies)
@@ -72,14 +72,13 @@ def _luxo_variant(rng, k):
             float(rng.uniform(0.7, 1.3)), 0.05
         ms = float(np.mean(mass))
     model = model.replace(mass=model.mass * mass, inertia=model.inertia * mass[:, None, None])
-    contact = L.luxo_contact(stiffness=5e3 * ks, friction=fr)
+    contact = luxo_contact(stiffness=5e3 * ks, friction=fr)
     q_rest, _ = standing_equilibrium(model, Environment([ground()]), contact,
-                                     np.array([0.0, L.REST_Z, L.REST_PITCH, *L.REST_ACTIVE]), L.ACTIVE)
+                                     np.array([0.0, REST_Z, REST_PITCH, *REST_ACTIVE]), ACTIVE)
     keys = tuple((t, tuple(np.asarray(post) + noise * rng.standard_normal(3))) if 0 < t < 1 else (t, post)
-                 for t, post in L.KEYFRAMES)
-    p = hop_problem(f"luxo-variant-{k}", model, L.ACTIVE, np.asarray(q_rest), contact, distance=L.FOOT_LENGTH * ds,
-                    t_final=1.0, n_ctrl=14, dt=0.002, clearance=0.01, max_pitch=1.0, w_land=0.0, min_flight=0.05,
-                    keyframes=keys, max_penetration=0.015, dense_torque=True)
+                 for t, post in KEYFRAMES)
+    p = luxo(distance=FOOT_LENGTH * ds, contact=contact, model=model, q_rest=np.asarray(q_rest), keyframes=keys,
+             name=f"luxo-variant-{k}")
     return p, dict(mass_scale_mean=ms, friction=fr, stiffness_scale=ks, distance_scale=ds, keyframe_noise_rad=noise)
 
 

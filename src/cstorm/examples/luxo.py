@@ -77,7 +77,8 @@ KEYFRAMES = (
 
 def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, dt: float = 0.002,
          clearance: float = 0.01, integrator: str = "rk4", contact=None, schedule=None, max_pitch: float = 1.0,
-         w_land: float = 1e5, first_step: float = 0.1, dense_torque: bool = True):
+         w_land: float = 1e5, first_step: float = 0.1, dense_torque: bool = True, model=None, q_rest=None,
+         keyframes=KEYFRAMES, name: str = "luxo"):
     """Hop forward by at least ``distance`` m (default one foot length, 0.16 m), with a
     flight phase, and land at rest in the rest posture.
 
@@ -92,13 +93,18 @@ def luxo(distance: float = FOOT_LENGTH, t_final: float = 1.0, n_ctrl: int = 14, 
     ``dense_torque`` (default) the motor limits on every integration step, tightened along
     `hopping.DENSE_RAMP` after the landing ramp (without it only the constraint grid's
     samples, and the landing needs 1.11x the elbow's limit between two of them).
-    Initial guess: `KEYFRAMES` (posture level)."""
-    model = luxo_model()
+    Initial guess: `KEYFRAMES` (posture level).
+
+    Variants (`benchmarks.ddp_robustness`): ``model`` (default `luxo_model()`), ``q_rest``
+    (nq,) the start and landing state (default `REST_ACTIVE` on the base's equilibrium
+    with the default contact: `REST_Z`, `REST_PITCH`), ``keyframes`` the guess's
+    postures, ``name``."""
+    model = luxo_model() if model is None else model
     contact = luxo_contact() if contact is None else contact
-    q_rest = np.array([0.0, REST_Z, REST_PITCH, *REST_ACTIVE])
-    return hop_problem("luxo", model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
+    q_rest = np.array([0.0, REST_Z, REST_PITCH, *REST_ACTIVE]) if q_rest is None else np.asarray(q_rest, float)
+    return hop_problem(name, model, ACTIVE, q_rest, contact, distance=distance, t_final=t_final, n_ctrl=n_ctrl,
                        dt=dt, clearance=clearance, max_pitch=max_pitch, w_land=w_land, min_flight=0.05,
-                       keyframes=KEYFRAMES, integrator=integrator, schedule=schedule, first_step=first_step,
+                       keyframes=keyframes, integrator=integrator, schedule=schedule, first_step=first_step,
                        max_penetration=0.015, dense_torque=dense_torque)
 
 

@@ -15,7 +15,6 @@ A benchmark, never a test.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
 import tempfile

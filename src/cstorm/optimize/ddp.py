@@ -679,7 +679,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     gap = float(jnp.max(jnp.linalg.norm(ev["gaps"], axis=1)))
     viol = _max(_rows(ev))
     worst = _worst_row(ev)
-    K = _feedback_gains(C, X, U, data, al, lb, ub, reg, opt)
+    # at convergence the loop's last Riccati pass is at (X, U) already
+    K = np.asarray(bw["K"]) if status == "converged" else _feedback_gains(C, X, U, data, al, lb, ub, reg, opt)
     return DDPResult(worst=worst, X=np.asarray(X), U=np.asarray(U), Y=np.asarray(ev["Y"]), cost=float(ev["cost"]),
                      K=K,
                      violation=viol, gap=gap, converged=converged and gap <= max(opt.gap_tol, 1e-8),

@@ -487,7 +487,8 @@ def tracking_gains(tr: Transcription, data=None, bandwidth=None):
     nv, N = p.model.nv, p.n_steps
     iva = np.array(p.layout.va_idx, int)
     w = 1.0 / (10.0 * p.dt) if bandwidth is None else float(bandwidth)
-    M = np.asarray(mass_matrix(data["model"], data["q0"]))
+    # compiled once per problem (eager, the CRBA's op-by-op dispatch takes ~2 s every solve)
+    M = np.asarray(p.cached("ddp_mass_matrix", lambda: jax.jit(mass_matrix))(data["model"], data["q0"]))
     K = np.zeros((N + 1, len(iva), 2 * nv))
     for j, i in enumerate(iva):
         K[:, j, i] = -M[i, i] * w * w
@@ -499,6 +500,11 @@ def tracking_gains(tr: Transcription, data=None, bandwidth=None):
 #: every torque moves its states by at most ``FOLLOW_GAIN`` times as much (`first_iterate`)
 FOLLOW_DELTA = 1e-8
 FOLLOW_GAIN = 1e4
+
+
+#: what `solve_ddp` started from (``Solution.info["first_iterate"]``)
+_STARTS = dict(rollout="the guess tracked by a PD law on the joints (a rollout)", guess="the guess with its gaps",
+               given="the given guess")
 
 
 def first_iterate(C, tr, X, U, data, al):
@@ -682,7 +688,7 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
     if guess is None:
         X0, U0, start = first_iterate(C, tr, X0, np.asarray(Uj), data, al)
     if verbose:
-        log(f"first iterate: {dict(rollout='the guess tracked by a PD law on the joints (a rollout)', guess='the guess with its gaps', given='the given guess')[start]}")
+        log(f"first iterate: {_STARTS[start]}")
     res = solve_ocp(tr.ocp, X0, U0, data, tr.lb, tr.ub, opt, compiled=C, callback=callback, log=log,
                     row_label=tr.row_label)
     traj = tr.trajectory(res.Y)

@@ -702,13 +702,16 @@ def solve_ddp(problem, *, q0=None, v0=None, guess=None, max_iter=500, tol=1e-9, 
                "regularization": "the backward pass failed at the largest regularization",
                "interrupted": "interrupted by the user (KeyboardInterrupt); returning the best iterate so far"
                }.get(res.status, res.status)
+    if res.reason == "stalled":
+        message += f" (the merit changed by less than tol={tol:g} over the last {opt.stall_window} steps)"
     if res.status == "converged" and not success:
         message += f"; but the constraint violation {res.violation:.3g} exceeds constraint_tol={constraint_tol:g}"
     if res.worst is not None and res.violation > constraint_tol:
         message += f"; most violated: {tr.row_label(*res.worst[:3])} by {res.worst[3]:.3g}"
     info = dict(method="ddp", controls="motor torques held over each step", first_iterate=start,
                 max_iter=max_iter, tol=tol,
-                constraint_tol=constraint_tol, status=res.status, gap=res.gap, problem_hash=problem.hash(),
+                constraint_tol=constraint_tol, status=res.status, converged_by=res.reason, gap=res.gap,
+                problem_hash=problem.hash(),
                 problem_description=problem.describe(), cstorm_version=_ver,
                 constraint_rows=dict(eq=tr.eq_terms, ineq=tr.in_terms, trajectory_eq=tr.geq_terms,
                                      trajectory_ineq=tr.gin_terms))

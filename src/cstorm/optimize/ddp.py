@@ -744,12 +744,15 @@ def _better(a, b, opt):
 
 
 def initial_multipliers(ocp, mu0):
-    """Zero multipliers and the penalty ``mu0`` on every row (a dict of arrays)."""
+    """Zero multipliers and the penalty ``mu0`` on every row (a dict of float64 arrays,
+    not weakly typed: the updates' arrays are not, and a change of type recompiles every
+    compiled function that takes them)."""
     N = ocp.n_steps
-    return dict(lam_eq=jnp.zeros((N + 1, ocp.n_eq)), lam_in=jnp.zeros((N + 1, ocp.n_in)),
-                mu_eq=jnp.full((N + 1, ocp.n_eq), mu0), mu_in=jnp.full((N + 1, ocp.n_in), mu0),
-                lam_geq=jnp.zeros(ocp.n_geq), lam_gin=jnp.zeros(ocp.n_gin), mu_geq=jnp.full(ocp.n_geq, mu0),
-                mu_gin=jnp.full(ocp.n_gin, mu0))
+    f = lambda shape, v: jnp.full(shape, v, dtype=jnp.float64)
+    return dict(lam_eq=f((N + 1, ocp.n_eq), 0.0), lam_in=f((N + 1, ocp.n_in), 0.0),
+                mu_eq=f((N + 1, ocp.n_eq), mu0), mu_in=f((N + 1, ocp.n_in), mu0),
+                lam_geq=f(ocp.n_geq, 0.0), lam_gin=f(ocp.n_gin, 0.0), mu_geq=f(ocp.n_geq, mu0),
+                mu_gin=f(ocp.n_gin, mu0))
 
 
 def _rows(ev):

@@ -147,6 +147,12 @@ def test_acrobot_swing_up_with_terminal_constraints():
     assert abs(tr["q"][-1, 1]) < 1e-5 and abs(tr["v"][-1, 1]) < 1e-5
     # per-step torques reach a cheaper motion than the 16-control-point spline (154.3)
     assert sol.cost < 154.3
+    # one compile per problem: the outer loop's multiplier and penalty updates (several
+    # here) change values, not the compiled functions' input types
+    C = ddp_problem.compiled_transcription(p)[1]
+    assert max(h["outer"] for h in sol.history) >= 2
+    for name in ("linearize", "backward", "_forward_jit", "project", "node_terms"):
+        assert getattr(C, name)._cache_size() == 1, name
     assert tr["u"].shape == (p.n_steps + 1, 1)
     # `spline_guess`: the paper's control points fitted to the DDP path (a start for
     # polishing with SLSQP): closer to it than the problem's own guess, boundary

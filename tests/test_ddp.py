@@ -221,3 +221,29 @@ def test_merit_gradient_matches_finite_differences():
             # merit's gradient (the Riccati pass carries it through the dynamics)
             g = float(lin["lx"][k, i]) if i < 4 else float(lin["lu"][k, i - 4])
             assert abs(fd - g) <= 1e-6 * (1 + abs(g)), (k, i, fd, g)
+
+
+def test_outer_update_shares_a_path_rows_penalty_and_keeps_types():
+    """The augmented Lagrangian's outer update: PHR multipliers (``max(0, lambda - mu
+    c)`` for inequalities), a row that did not improve 4x gets 10x the penalty, a path
+    row's penalty is the largest of its nodes' at every node, and the arrays keep their
+    type (float64, not weakly typed: a change recompiles the solver's functions)."""
+    n, n_eq, n_in = 4, 1, 2
+    ocp = ddp.OCP(n_steps=n, nx=2, nu=1, n_eq=n_eq, n_in=n_in, integrate=None, difference=None, step=None,
+                  point=None, cost=None, constraints=None, mask_eq=np.ones((n + 1, n_eq), bool),
+                  mask_in=np.ones((n + 1, n_in), bool), x_bad=None)
+    opt = ddp.DDPOptions()
+    al = ddp.initial_multipliers(ocp, opt.mu0)
+    ci = np.zeros((n + 1, n_in))
+    ci[2, 0] = -0.1  # row 0 violated at node 2 only
+    ev = dict(ce=jnp.zeros((n + 1, n_eq)), ci=jnp.asarray(ci), ve=np.zeros((n + 1, n_eq)),
+              vi=np.maximum(0.0, -ci))
+    prev = (np.zeros((n + 1, n_eq)), np.zeros((n + 1, n_in)))  # (violations at the last update)
+    out = ddp._update_al(al, ev, ocp, opt, prev)
+    np.testing.assert_allclose(out["lam_in"][:, 0], [0, 0, opt.mu0 * 0.1, 0, 0])
+    np.testing.assert_allclose(out["mu_in"][:, 0], 10 * opt.mu0)  # every node of row 0
+    np.testing.assert_allclose(out["mu_in"][:, 1], opt.mu0)  # row 1 is met everywhere
+    np.testing.assert_allclose(out["mu_eq"], opt.mu0)
+    for k, v in out.items():
+        assert v.dtype == jnp.float64 and not v.weak_type, k
+        assert al[k].shape == v.shape and not al[k].weak_type, k

@@ -770,9 +770,8 @@ def _update_al(al, ev, ocp, opt, row_prev):
     the scale of a constraint is the row's, and an active arc whose ends move between
     updates (a joint resting on its limit from some instant on) would otherwise meet the
     initial penalty at every node it newly reaches, so that its violation wandered along
-    the arc for hundreds of iterations (the tumbler's `start` segment: 500 iterations
-    unconverged at a violation of 3e-5; with shared penalties converged in 382). Rows
-    that are not active cost nothing at any penalty (PHR)."""
+    the arc for hundreds of iterations (the tumbler's `start` segment). Rows that are not
+    active cost nothing at any penalty (PHR)."""
     ce, ci = ev["ce"], ev["ci"]
     me, mi = jnp.asarray(ocp.mask_eq), jnp.asarray(ocp.mask_in)
     out = dict(al)

@@ -67,11 +67,17 @@ def _probe(mode, **env):
 @pytest.mark.skipif(not GLIBC, reason="tune_allocator acts on glibc only")
 def test_large_temporary_buffer_is_reused_once_tuned():
     default = _probe("none")
-    tuned = _probe("tune")
     assert default["tuned"] is None and not default["state"]
-    assert tuned["tuned"] is True and tuned["state"] and not tuned["warned"]
     # glibc's defaults: the ~65 MB buffer is mapped afresh per call (16,000 4 KB pages)
     assert default["faults"] > 5000, default
+    # page faults also count the machine's memory pressure: on a loaded machine one
+    # interpreter of three may fault some pages in again, so the quietest of up to three
+    # decides (a tuning without effect faults ~16,000 pages a call in all three)
+    for _ in range(3):
+        tuned = _probe("tune")
+        assert tuned["tuned"] is True and tuned["state"] and not tuned["warned"]
+        if tuned["faults"] < 0.05 * default["faults"]:
+            break
     assert tuned["faults"] < 0.05 * default["faults"], (tuned, default)
 
 

@@ -74,6 +74,35 @@ def test_step_linearization_matches_finite_differences():
     np.testing.assert_allclose(J, Jfd, rtol=1e-6, atol=1e-8)
 
 
+def test_dynamics_curvature_matches_finite_differences():
+    """`second_order`'s curvature term at a node, ``d^2/dz^2 (lambda . f(x (+) dx, u))``,
+    equals central differences of the step Jacobian's ``J' lambda``."""
+    p = _pendulum_problem("rk4")
+    tr = ddp_problem.transcribe(p)
+    o = tr.ocp
+    C = ddp.compile_ocp(o)
+    rng = np.random.default_rng(3)
+    X = jnp.asarray(rng.normal(size=(N + 1, 4)))
+    U = jnp.asarray(rng.normal(size=(N + 1, 2)) * 3)
+    lam = jnp.asarray(rng.normal(size=(N + 1, 4)))
+    D = np.asarray(C.curvature(X, U, tr.data, lam))
+    assert D.shape == (N + 1, 6, 6) and np.all(D[-1] == 0.0)
+    nx = o.nx
+
+    @jax.jit
+    def g(z, k):  # J' lambda of node k's step at z = (dx, u)
+        def f(zz):
+            return o.difference(X[k + 1], o.step(o.integrate(X[k], zz[:nx]), zz[nx:], k, tr.data)[0])
+        return jax.jacfwd(f)(z).T @ lam[k + 1]
+
+    for k in (0, 41):
+        z0 = jnp.concatenate([jnp.zeros(nx), U[k]])
+        h = 1e-5
+        Dfd = np.stack([(np.asarray(g(z0 + h * e, k)) - np.asarray(g(z0 - h * e, k))) / (2 * h) for e in np.eye(6)],
+                       axis=1)
+        np.testing.assert_allclose(D[k], Dfd, rtol=1e-6, atol=1e-7 * np.abs(Dfd).max())
+
+
 def _crocoddyl_cost(integrator, torque_limit=None):
     crocoddyl = pytest.importorskip("crocoddyl")
     pin = pytest.importorskip("pinocchio")
@@ -131,6 +160,11 @@ def test_matches_crocoddyl_fddp_and_boxfddp(integrator):
     c_free, c_box = _crocoddyl_cost(integrator), _crocoddyl_cost(integrator, torque_limit=12.0)
     assert abs(free.cost - c_free) <= 1e-6 * c_free
     assert abs(boxed.cost - c_box) <= 1e-6 * c_box
+    # with the dynamics' curvature in the Riccati pass (`second_order`): the same optimum
+    boxed2 = ddp.solve_ocp(tr.ocp, X0, U0, tr.data, tr.lb, tr.ub, ddp.DDPOptions(tol=1e-12, second_order=True),
+                           compiled=C)
+    assert boxed2.converged and any(h["second_order"] for h in boxed2.history)
+    assert abs(boxed2.cost - c_box) <= 1e-6 * c_box
 
 
 def test_acrobot_swing_up_with_terminal_constraints():

@@ -38,6 +38,11 @@ One iteration
    the quadratic model's prediction. A failed search or a failed factorization raises
    ``rho`` tenfold; a full step lowers it.
 
+With ``DDPOptions.second_order`` the Hessians also carry the dynamics' curvature weighted
+by the costates of a Gauss-Newton pass at the iterate (DDP proper rather than iLQR): on
+contact the Gauss-Newton model can miss most of the curvature along its own step, so
+its full steps overshoot and the tail converges slowly.
+
 Outer loop: after each inner solve (stationarity below a tolerance that tightens with
 the constraint violation, or an iteration cap), the multipliers take their first-order
 update (``lambda_eq += mu c``, ``lambda_in = max(0, lambda_in - mu c)``) and every row
@@ -118,6 +123,11 @@ class DDPOptions:
     multiplies it by ``reg_down``, an accepted step shorter than ``reg_up_below`` by 10.
     alpha_min: the shortest line-search step. project_end: try the step that meets the
     final node's rows' linearization (`_Compiled._project`) before the penalty-only step.
+    second_order: once the iterate is gap-free, add the dynamics' curvature weighted by
+    the costates (`_Compiled._curvature`, DDP's ``V_x . f_zz``) to the Gauss-Newton
+    Hessians, where the Riccati pass stays positive definite with it (Gauss-Newton's pass
+    otherwise). The term is refreshed when a full step fails on a term computed at an
+    earlier iterate. About 14 times a linearization's cost per refresh.
     verbose: print one line per iteration.
     """
 
@@ -134,6 +144,7 @@ class DDPOptions:
     reg_down: float = 1.0 / 3.0
     reg_up_below: float = 0.5
     project_end: bool = True
+    second_order: bool = False
     armijo: float = 0.1
     inner_max_iter: int = 60
     stall_window: int = 5
@@ -214,6 +225,7 @@ class _Compiled:
     def __init__(self, ocp: OCP):
         self.ocp = ocp
         self.linearize = jax.jit(self._linearize)
+        self.curvature = jax.jit(self._curvature)
         self.backward = jax.jit(self._backward)
         self._forward_jit = jax.jit(self._forward)
         self.project = jax.jit(self._project)
@@ -317,6 +329,27 @@ class _Compiled:
         return dict(A=Jn[:, :, :nx], B=Jn[:, :, nx:], gaps=gaps, lx=g[:, :nx], lu=g[:, nx:], lxx=H[:, :nx, :nx],
                     luu=H[:, nx:, nx:], lux=H[:, nx:, :nx], cN=cN, CN=CN)
 
+    def _curvature(self, X, U, data, costate):
+        """The dynamics' second-order term of the Lagrangian's Hessian, per node: ``D_k =
+        d^2/dz^2 (lambda_{k+1} . (f(x_k (+) dx, u) (-) X_{k+1}))`` at ``z = (0, U_k)``
+        (N+1, nx + nu, nx + nu), with the costates ``lambda_{k+1}`` the value function's
+        gradients of a Riccati pass (``costate`` (N+1, nx)); zero at node ``N``."""
+        o = self.ocp
+        nx = o.nx
+        Xn = jnp.concatenate([X[1:], X[-1:]])
+        lam = jnp.concatenate([costate[1:], jnp.zeros_like(costate[:1])])
+
+        def node(x, u, xn_ref, lamn, k):
+            def phi(z):
+                xn, _ = o.step(o.integrate(x, z[:nx]), z[nx:], k, data)
+                return lamn @ o.difference(xn_ref, xn)
+
+            z0 = jnp.concatenate([jnp.zeros(nx, x.dtype), u])
+            H = jax.jacfwd(jax.grad(phi))(z0)
+            return 0.5 * (H + H.T)
+
+        return jax.vmap(node)(X, U, Xn, lam, jnp.arange(self.ocp.n_steps + 1))
+
     # -- backward pass -------------------------------------------------------------------
     def _backward(self, lin, U, lb, ub, reg):
         """Riccati recursion with gaps and control boxes. Returns ``k (N+1, nu), K (N+1,
@@ -365,7 +398,7 @@ class _Compiled:
         f = lin["gaps"]
         dg = jnp.sum(jnp.einsum("ki,ki->k", Vx, f))
         dq = jnp.sum(jnp.einsum("ki,kij,kj->k", f, Vxx, f))
-        return dict(k=k, K=K, ke=ke, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok, Vxx=Vxx)
+        return dict(k=k, K=K, ke=ke, d1=jnp.sum(d1), d2=jnp.sum(d2), dg=dg, dq=dq, ok=ok, Vxx=Vxx, Vx=Vx)
 
     # -- the end rows as constraints of the LQ subproblem ---------------------------------
     def _project(self, lin, bw, me_N, mi_N):
@@ -554,11 +587,13 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
     if opt.verbose:
         log(f"{'iter':>5} {'cost':>13} {'merit':>13} {'viol':>9} {'gap':>9} {'reg':>8} {'step':>8} {'stat':>9} "
             f"{'time':>7}  most violated")
+    D, D_fresh = None, False  # `second_order`'s curvature term, and whether it is the iterate's
     try:
         lin = None
         while it < opt.max_iter:
             if lin is None:  # (kept when the iterate and the multipliers did not change)
                 lin = C.linearize(X, U, data, al)
+                lin_so = None
             bw = C.backward(lin, U, lb, ub, reg)
             if not bool(bw["ok"]):
                 reg *= 10.0
@@ -566,6 +601,18 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     status = "regularization"
                     break
                 continue
+            lin_used = lin
+            so_used = False
+            if opt.second_order and feasible:
+                if D is None:
+                    D, D_fresh = C.curvature(X, U, data, bw["Vx"]), True
+                if lin_so is None:
+                    nx_ = ocp.nx
+                    lin_so = dict(lin, lxx=lin["lxx"] + D[:, :nx_, :nx_], luu=lin["luu"] + D[:, nx_:, nx_:],
+                                  lux=lin["lux"] + D[:, nx_:, :nx_])
+                bw_so = C.backward(lin_so, U, lb, ub, reg)
+                if bool(bw_so["ok"]):
+                    bw, lin_used, so_used = bw_so, lin_so, True
             d1, d2 = float(bw["d1"]), float(bw["d2"])
             merit = float(ev["merit"])
             stat = -d1 / (1.0 + abs(merit))
@@ -585,6 +632,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                 al = _update_al(al, ev, ocp, opt, row_prev)
                 outer += 1
                 lin = None
+                D = None
                 row_prev = _row_state(ev)
                 inner = 0
                 ev = dict(ev, **C.node_terms(ev["Y"], data, al))
@@ -595,7 +643,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             # multipliers, as an SQP's: a step that meets the rows can raise the cost)
             steps = []
             if n_end and opt.project_end:
-                pj = C.project(lin, bw, me_N, mi_N)
+                pj = C.project(lin_used, bw, me_N, mi_N)
                 if bool(pj["ok"]):
                     sigma = 2.0 * float(jnp.max(jnp.abs(pj["nu"])))
                     steps.append((pj["k"], float(pj["d1"]) - sigma * _end_viol(ev), float(pj["d2"]), "end"))
@@ -637,6 +685,8 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     break
             it += 1
             inner += 1
+            if (accepted is None or alpha < 1.0) and not D_fresh:
+                D, lin_so = None, None  # a stale curvature term failed the full step: refresh it
             if accepted is None:
                 reg *= 10.0
                 step = 0.0
@@ -645,7 +695,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     break
             else:
                 X, U = accepted["X"], accepted["U"]
-                lin = None
+                lin, D_fresh = None, False
                 if kind == "end":
                     # the rows now hold to first order: their multipliers become the LQ
                     # step's (the penalties' gradient at c = 0 plus nu), so that the
@@ -664,14 +714,14 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             viol = _max(_rows(ev))
             entry = dict(iteration=it, outer=outer, cost=float(ev["cost"]), merit=float(ev["merit"]), violation=viol,
                          gap=gap, reg=reg, step=step, stationarity=stat, time=time.perf_counter() - t0,
-                         direction=kind if accepted is not None else None)
+                         direction=kind if accepted is not None else None, second_order=so_used)
             history.append(entry)
             if feasible and (best is None or _better(entry, best[0], opt)):
                 best = (entry, X, U)
             if opt.verbose:
                 w = _worst_row(ev) if viol > opt.constraint_tol else None
                 where = "" if w is None else (row_label(*w[:3]) if row_label else f"{w[0]} node {w[1]} row {w[2]}")
-                mark = "*" if entry["direction"] == "end" else " "
+                mark = ("*" if entry["direction"] == "end" else " ") + ("2" if so_used else " ")
                 log(f"{it:5d} {entry['cost']:13.6e} {entry['merit']:13.6e} {viol:9.2e} {gap:9.2e} {reg:8.1e} "
                     f"{step:8.2e}{mark}{stat:9.2e} {entry['time']:7.2f}  {where}")
             if callback is not None:

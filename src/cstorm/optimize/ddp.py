@@ -127,7 +127,7 @@ class DDPOptions:
     the costates (`_Compiled._curvature`, DDP's ``V_x . f_zz``) to the Gauss-Newton
     Hessians, where the Riccati pass stays positive definite with it (Gauss-Newton's pass
     otherwise). The term is refreshed when a full step fails on a term computed at an
-    earlier iterate. About 14 times a linearization's cost per refresh.
+    earlier iterate. About 9 times a linearization's cost per refresh.
     verbose: print one line per iteration.
     """
 

@@ -4,12 +4,14 @@ violation, success, the worst torque/limit ratio on every step, and the paper me
 (SLSQP along the problem's plan) cost and time on the same problem, measured in the same
 run.
 
-    python -m benchmarks.ddp [--problems acrobot,tumbler:start,...] [--no-slsqp] [--out PATH]
+    python -m benchmarks.ddp [--problems acrobot,tumbler:start,...] [--no-slsqp]
+                             [--ddp-options '{"second_order": true}'] [--out PATH]
 
 Problem names: a shipped example (``acrobot``) or ``tumbler:SEGMENT`` (one segment of
 the tumbler sequence from its nominal start). Results go to
 ``benchmarks/results/ddp-<date>.json`` (date, commit, machine, versions, one row per
-problem and method) and a table to stdout. A benchmark, never a test: its times depend
+problem and method) and a table to stdout. ``--ddp-options``: DDP is also run with these
+solver options (row ``ddp_options``, printed as ``ddp*``), next to its defaults. A benchmark, never a test: its times depend
 on the machine and its load.
 """
 
@@ -33,7 +35,7 @@ jax.config.update("jax_compilation_cache_dir", sys.argv[3])
 import numpy as np
 import cstorm as cs
 from cstorm.report import torque_check
-name, method = sys.argv[1], sys.argv[2]
+name, method, options = sys.argv[1], sys.argv[2], json.loads(sys.argv[4]) or None
 if name.startswith("tumbler:"):
     from cstorm.examples.tumbler import tumbler_segment
     p = tumbler_segment(name.split(":", 1)[1])
@@ -41,7 +43,7 @@ else:
     p = cs.examples.get(name)()
 t0 = time.perf_counter()
 try:
-    s = cs.solve(p, method=method, max_iter=500)
+    s = cs.solve(p, method=method, max_iter=500, options=options)
     tc = torque_check(p, s)
     row = dict(success=s.success, message=s.message, cost=s.cost, violation=s.constraint_violation,
                iterations=s.iterations, wall_s=time.perf_counter() - t0, compile_s=s.compile_time_s,
@@ -52,11 +54,11 @@ print("RESULT " + json.dumps(row))
 """
 
 
-def _run(name, method, timeout):
+def _run(name, method, timeout, options=None):
     with tempfile.TemporaryDirectory() as cache:  # a cold compile cache
         try:
-            out = subprocess.run([sys.executable, "-c", _CHILD, name, method, cache], capture_output=True, text=True,
-                                 timeout=timeout)
+            out = subprocess.run([sys.executable, "-c", _CHILD, name, method, cache, json.dumps(options or {})],
+                                 capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:
             return dict(success=False, message=f"no result within {timeout} s")
     for line in out.stdout.splitlines():
@@ -78,14 +80,16 @@ def _provenance():
                 cstorm=cstorm.__version__)
 
 
-def run(quick=False, problems=DEFAULT, slsqp=True, timeout=1800):
+def run(quick=False, problems=DEFAULT, slsqp=True, timeout=1800, ddp_options=None):
     """Rows for the benchmark runner (``cstorm_us``: DDP's wall time in us; ``peer``: the
-    paper's SLSQP on the same problem)."""
+    paper's SLSQP on the same problem; ``ddp_options``: DDP with these options too)."""
     rows = []
     for name in (problems[:1] if quick else problems):
         d = _run(name, "ddp", timeout)
+        d2 = _run(name, "ddp", timeout, ddp_options) if ddp_options else {}
         s = _run(name, "slsqp", timeout) if slsqp else {}
-        rows.append(dict(benchmark="ddp", case=name, ddp=d, slsqp=s, cstorm_us=d.get("wall_s", float("nan")) * 1e6,
+        rows.append(dict(benchmark="ddp", case=name, ddp=d, ddp_options=d2, options=ddp_options or {}, slsqp=s,
+                         cstorm_us=d.get("wall_s", float("nan")) * 1e6,
                          peer="SLSQP along the problem's plan (the paper's method)",
                          peer_us=s.get("wall_s", float("nan")) * 1e6 if s else float("nan"),
                          ratio=(d.get("wall_s", float("nan")) / s["wall_s"]) if s.get("wall_s") else float("nan"),
@@ -100,9 +104,11 @@ def main(argv=None):
     ap.add_argument("--problems", default=",".join(DEFAULT))
     ap.add_argument("--no-slsqp", action="store_true")
     ap.add_argument("--timeout", type=float, default=1800)
+    ap.add_argument("--ddp-options", default=None, help="DDP options (JSON) to run next to the defaults")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    rows = run(problems=tuple(a.problems.split(",")), slsqp=not a.no_slsqp, timeout=a.timeout)
+    rows = run(problems=tuple(a.problems.split(",")), slsqp=not a.no_slsqp, timeout=a.timeout,
+               ddp_options=json.loads(a.ddp_options) if a.ddp_options else None)
     prov = _provenance()
     out = a.out or os.path.join(os.path.dirname(__file__), "results", f"ddp-{prov['date'][:10]}.json")
     os.makedirs(os.path.dirname(out), exist_ok=True)
@@ -113,11 +119,11 @@ def main(argv=None):
     print(f"{'problem':20s} {'method':6s} {'ok':3s} {'cost':>10s} {'viol':>8s} {'iter':>5s} {'wall s':>7s} "
           f"{'compile':>7s} {'tau/lim':>7s}")
     for r in rows:
-        for m in ("ddp", "slsqp"):
-            x = r[m]
+        for m in ("ddp", "ddp_options", "slsqp"):
+            x = r.get(m)
             if not x:
                 continue
-            print(f"{r['case']:20s} {m:6s} {'yes' if x.get('success') else 'no':3s} {g(x, 'cost', '10.4g')} "
+            print(f"{r['case']:20s} {'ddp*' if m == 'ddp_options' else m:6s} {'yes' if x.get('success') else 'no':3s} {g(x, 'cost', '10.4g')} "
                   f"{g(x, 'violation', '8.1e')} {g(x, 'iterations', '5d')} {g(x, 'wall_s', '7.1f')} "
                   f"{g(x, 'compile_s', '7.1f')} {g(x, 'torque_ratio', '7.2f')}")
     print(f"written to {out}")

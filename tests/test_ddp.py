@@ -185,6 +185,9 @@ def test_acrobot_swing_up_with_terminal_constraints():
     # here) change values, not the compiled functions' input types
     C = ddp_problem.compiled_transcription(p)[1]
     assert max(h["outer"] for h in sol.history) >= 2
+    # at least one iteration between outer updates (repeated at one iterate, an update
+    # adds mu c to the multipliers again and raises the penalties tenfold again)
+    assert all(b["outer"] - a["outer"] <= 1 for a, b in zip(sol.history, sol.history[1:]))
     for name in ("linearize", "backward", "_forward_jit", "project", "node_terms"):
         assert getattr(C, name)._cache_size() == 1, name
     assert tr["u"].shape == (p.n_steps + 1, 1)

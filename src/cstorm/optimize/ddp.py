@@ -43,8 +43,9 @@ by the costates of a Gauss-Newton pass at the iterate (DDP proper rather than iL
 contact the Gauss-Newton model can miss most of the curvature along its own step, so
 its full steps overshoot and the tail converges slowly.
 
-Outer loop: after each inner solve (stationarity below a tolerance that tightens with
-the constraint violation, or an iteration cap), the multipliers take their first-order
+Outer loop: after each inner solve of at least one iteration (stationarity below a
+tolerance that tightens with the constraint violation, or an iteration cap), the
+multipliers take their first-order
 update (``lambda_eq += mu c``, ``lambda_in = max(0, lambda_in - mu c)``) and every row
 whose violation did not fall below a quarter of its last value gets a tenfold ``mu``.
 The rules and constants are the solver's, the same for every problem.
@@ -628,15 +629,19 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
                     status, converged = "converged", True
                     reason = "stationary" if stat <= opt.tol else "stalled"
                     break
-                # outer update: multipliers, and penalties of rows that did not improve
-                al = _update_al(al, ev, ocp, opt, row_prev)
-                outer += 1
-                lin = None
-                D = None
-                row_prev = _row_state(ev)
-                inner = 0
-                ev = dict(ev, **C.node_terms(ev["Y"], data, al))
-                continue
+                if inner > 0:
+                    # outer update: multipliers, and penalties of rows that did not
+                    # improve; then at least one iteration before the next (a second
+                    # update at the same iterate would add mu c to the multipliers again
+                    # and raise the penalties tenfold again, with nothing solved between)
+                    al = _update_al(al, ev, ocp, opt, row_prev)
+                    outer += 1
+                    lin = None
+                    D = None
+                    row_prev = _row_state(ev)
+                    inner = 0
+                    ev = dict(ev, **C.node_terms(ev["Y"], data, al))
+                    continue
             # line search: first along the step that meets the end rows' linearization
             # (`_project`), then along the penalty-only step
             # (its merit adds the exact penalty sigma |c_N|_1 with sigma above the rows'

@@ -45,9 +45,9 @@ its full steps overshoot and the tail converges slowly.
 
 Outer loop: after each inner solve of at least one iteration (stationarity below a
 tolerance that tightens with the constraint violation, or an iteration cap), the
-multipliers take their first-order
-update (``lambda_eq += mu c``, ``lambda_in = max(0, lambda_in - mu c)``) and every row
-whose violation did not fall below a quarter of its last value gets a tenfold ``mu``.
+multipliers take their first-order update (``lambda_eq += mu c``, ``lambda_in = max(0,
+lambda_in - mu c)``) and every row whose violation did not fall below a quarter of its
+last value gets a tenfold ``mu``.
 The rules and constants are the solver's, the same for every problem.
 
 Compiled once per problem shape: the iterate, multipliers, penalties, ``alpha`` and

@@ -3,11 +3,14 @@ problem: masses and link lengths +-20 %, horizons +-20 %, noise on the guess's
 keyframes, seeded; and the same problem with analytic and with autodiff derivatives
 (the optimum must not depend on rounding: costs within 1e-6 relative).
 
-    python -m benchmarks.ddp_robustness [--problem acrobot] [--variants 20] [--seed 0] [--out PATH]
+    python -m benchmarks.ddp_robustness [--problem acrobot] [--variants 20] [--seed 0]
+                                        [--ddp-options '{"second_order": true}'] [--out PATH]
 
 Writes ``benchmarks/results/ddp-robustness-<problem>-<date>.json`` (date, commit,
 machine, one row per variant: what was changed, success, cost, iterations, wall and
-compile time) and prints a table with the success rate. The variants of one horizon
+compile time), rewritten after every variant (``complete`` false until the rounding check
+at the end), and prints a table with the success rate. ``--ddp-options``: solver options
+(JSON) for every solve instead of the defaults. The variants of one horizon
 share compiled code through JAX's persistent cache (set here to a fresh directory).
 A benchmark, never a test.
 """
@@ -92,8 +95,23 @@ def main(argv=None):
     ap.add_argument("--problem", default="acrobot", choices=sorted(VARIANTS))
     ap.add_argument("--variants", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--ddp-options", default=None, help="DDP options (JSON) instead of the defaults")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
+    options = json.loads(a.ddp_options) if a.ddp_options else None
+    prov = _provenance()
+    out = a.out or os.path.join(os.path.dirname(__file__), "results",
+                                f"ddp-robustness-{a.problem}{'-options' if options else ''}-{prov['date'][:10]}.json")
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+
+    def write(rows, **extra):  # atomically, after every variant: a stopped run keeps what it measured
+        ok = sum(r["success"] for r in rows)
+        with open(out + ".tmp", "w") as f:
+            json.dump(dict(provenance=prov, problem=a.problem, seed=a.seed, options=options or {},
+                           success_rate=ok / len(rows), variants_done=len(rows), variants=a.variants, rows=rows,
+                           **extra), f, indent=1)
+        os.replace(out + ".tmp", out)
+
     jax.config.update("jax_compilation_cache_dir", tempfile.mkdtemp(prefix="cstorm-bench-"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     rng = np.random.default_rng(a.seed)
@@ -101,16 +119,17 @@ def main(argv=None):
     for k in range(a.variants):
         p, what = VARIANTS[a.problem](rng, k)
         t0 = time.perf_counter()
-        s = cs.solve(p, method="ddp")
+        s = cs.solve(p, method="ddp", options=options)
         rows.append(dict(variant=k, **what, success=s.success, cost=s.cost, violation=s.constraint_violation,
                          iterations=s.iterations, wall_s=time.perf_counter() - t0, compile_s=s.compile_time_s,
                          message=s.message))
         print(f"{k:3d} {'ok ' if s.success else 'NO '} cost {s.cost:10.5g} it {s.iterations:4d} "
               f"{rows[-1]['wall_s']:6.1f} s  {what}", flush=True)
+        write(rows, complete=False)
     # rounding: the nominal problem with autodiff derivatives
     p, _ = VARIANTS[a.problem](np.random.default_rng(a.seed), 0)
     p.derivatives = "autodiff"
-    s = cs.solve(p, method="ddp")
+    s = cs.solve(p, method="ddp", options=options)
     nominal = rows[0]
     rel = abs(s.cost - nominal["cost"]) / abs(nominal["cost"])
     rounding = dict(analytic_cost=nominal["cost"], autodiff_cost=s.cost, relative_difference=rel,
@@ -118,14 +137,7 @@ def main(argv=None):
     ok = sum(r["success"] for r in rows)
     print(f"success {ok}/{len(rows)} ({100.0 * ok / len(rows):.0f} %); analytic vs autodiff derivatives: costs "
           f"{nominal['cost']:.12g} / {s.cost:.12g}, relative difference {rel:.2e}")
-    prov = _provenance()
-    out = a.out or os.path.join(os.path.dirname(__file__), "results",
-                                f"ddp-robustness-{a.problem}-{prov['date'][:10]}.json")
-    os.makedirs(os.path.dirname(out), exist_ok=True)
-    with open(out + ".tmp", "w") as f:
-        json.dump(dict(provenance=prov, problem=a.problem, seed=a.seed, success_rate=ok / len(rows), rows=rows,
-                       rounding=rounding), f, indent=1)
-    os.replace(out + ".tmp", out)
+    write(rows, complete=True, rounding=rounding)
     print(f"written to {out}")
 
 

@@ -11,8 +11,8 @@ Problem names: a shipped example (``acrobot``) or ``tumbler:SEGMENT`` (one segme
 the tumbler sequence from its nominal start). Results go to
 ``benchmarks/results/ddp-<date>.json`` (date, commit, machine, versions, one row per
 problem and method) and a table to stdout. ``--ddp-options``: DDP is also run with these
-solver options (row ``ddp_options``, printed as ``ddp*``), next to its defaults. A benchmark, never a test: its times depend
-on the machine and its load.
+solver options (row ``ddp_options``, printed as ``ddp*``), next to its defaults. A
+benchmark, never a test: its times depend on the machine and its load.
 """
 
 from __future__ import annotations
@@ -123,7 +123,8 @@ def main(argv=None):
             x = r.get(m)
             if not x:
                 continue
-            print(f"{r['case']:20s} {'ddp*' if m == 'ddp_options' else m:6s} {'yes' if x.get('success') else 'no':3s} {g(x, 'cost', '10.4g')} "
+            label = "ddp*" if m == "ddp_options" else m
+            print(f"{r['case']:20s} {label:6s} {'yes' if x.get('success') else 'no':3s} {g(x, 'cost', '10.4g')} "
                   f"{g(x, 'violation', '8.1e')} {g(x, 'iterations', '5d')} {g(x, 'wall_s', '7.1f')} "
                   f"{g(x, 'compile_s', '7.1f')} {g(x, 'torque_ratio', '7.2f')}")
     print(f"written to {out}")

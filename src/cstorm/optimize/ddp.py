@@ -263,6 +263,18 @@ class _Compiled:
                             al, shoot=True)
 
     # -- linearization -------------------------------------------------------------------
+    def _local_step(self, x, xn_ref, k, data):
+        """Node ``k``'s step in local coordinates: ``z = (dx (nx,), u (nu,)) -> (f(x (+) dx,
+        u) (-) xn_ref (nx,), y (n_y,))``, what the linearization and the curvature term
+        differentiate."""
+        o = self.ocp
+
+        def f(z):
+            xn, y = o.step(o.integrate(x, z[:o.nx]), z[o.nx:], k, data)
+            return o.difference(xn_ref, xn), y
+
+        return f
+
     def _linearize(self, X, U, data, al):
         """Derivatives of every node: dynamics ``A (N, nx, nx)``, ``B (N, nx, nu)``, gaps
         ``(N+1, nx)`` and the merit's gradient and Gauss-Newton Hessian blocks ``lx, lu,
@@ -272,11 +284,7 @@ class _Compiled:
         N = o.n_steps
 
         def node(x, u, xn_ref, k):
-            def f(z):
-                xx = o.integrate(x, z[:nx])
-                xn, y = o.step(xx, z[nx:], k, data)
-                return o.difference(xn_ref, xn), y
-
+            f = self._local_step(x, xn_ref, k, data)
             z0 = jnp.concatenate([jnp.zeros(nx, x.dtype), u])
             # values and Jacobians from one batched forward pass over the nx + nu tangents
             (dxn, y), (Jx, Jy) = jax.vmap(lambda t: jax.jvp(f, (z0,), (t,)), out_axes=(None, -1))(
@@ -341,12 +349,9 @@ class _Compiled:
         lam = jnp.concatenate([costate[1:], jnp.zeros_like(costate[:1])])
 
         def node(x, u, xn_ref, lamn, k):
-            def phi(z):
-                xn, _ = o.step(o.integrate(x, z[:nx]), z[nx:], k, data)
-                return lamn @ o.difference(xn_ref, xn)
-
+            f = self._local_step(x, xn_ref, k, data)
             z0 = jnp.concatenate([jnp.zeros(nx, x.dtype), u])
-            H = jax.jacfwd(jax.grad(phi))(z0)
+            H = jax.jacfwd(jax.grad(lambda z: lamn @ f(z)[0]))(z0)
             return 0.5 * (H + H.T)
 
         return jax.vmap(node)(X, U, Xn, lam, jnp.arange(self.ocp.n_steps + 1))
@@ -594,7 +599,6 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
         while it < opt.max_iter:
             if lin is None:  # (kept when the iterate and the multipliers did not change)
                 lin = C.linearize(X, U, data, al)
-                lin_so = None
             bw = C.backward(lin, U, lb, ub, reg)
             if not bool(bw["ok"]):
                 reg *= 10.0
@@ -607,10 +611,9 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             if opt.second_order and feasible:
                 if D is None:
                     D, D_fresh = C.curvature(X, U, data, bw["Vx"]), True
-                if lin_so is None:
-                    nx_ = ocp.nx
-                    lin_so = dict(lin, lxx=lin["lxx"] + D[:, :nx_, :nx_], luu=lin["luu"] + D[:, nx_:, nx_:],
-                                  lux=lin["lux"] + D[:, nx_:, :nx_])
+                n = ocp.nx
+                lin_so = dict(lin, lxx=lin["lxx"] + D[:, :n, :n], luu=lin["luu"] + D[:, n:, n:],
+                              lux=lin["lux"] + D[:, n:, :n])
                 bw_so = C.backward(lin_so, U, lb, ub, reg)
                 if bool(bw_so["ok"]):
                     bw, lin_used, so_used = bw_so, lin_so, True
@@ -691,7 +694,7 @@ def solve_ocp(ocp: OCP, X0, U0, data, lb, ub, options: DDPOptions | None = None,
             it += 1
             inner += 1
             if (accepted is None or alpha < 1.0) and not D_fresh:
-                D, lin_so = None, None  # a stale curvature term failed the full step: refresh it
+                D = None  # a stale curvature term failed the full step: refresh it
             if accepted is None:
                 reg *= 10.0
                 step = 0.0
